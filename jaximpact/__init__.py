@@ -1,0 +1,17 @@
+"""jaximpact: a differentiable simulator of microsphere impact (Brach, Dunn & Cheng 1999)."""
+
+from ._results import ImpactResult as ImpactResult
+from ._results import Status as Status
+from ._scene import Contact as Contact
+from ._scene import Impact as Impact
+from ._scene import Model as Model
+from ._scene import Particle as Particle
+from ._scene import Scene as Scene
+from ._scene import SceneError as SceneError
+from ._scene import Solver as Solver
+from ._scene import damping_from_zeta as damping_from_zeta
+from ._scene import hertz_stiffness as hertz_stiffness
+from ._scene import table1_scene as table1_scene
+from ._simulate import simulate as simulate
+
+__version__ = "0.1.0"

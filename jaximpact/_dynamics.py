@@ -1,0 +1,142 @@
+"""The equations of motion, assembled from only the terms a scene needs.
+
+``Terms`` is the static description of what is compiled: a normal-only impact has the states
+``n, ndot`` (plus its ledger) and never evaluates friction or moments; a scene without adhesion
+never evaluates the ring. Everything here works in Hertz units (mass 1, see ``_units.py``).
+
+State (a dict of scalars), by what the terms need:
+- always: ``n``, ``ndot``, ``peak`` (integral of max(ndot, 0): the peak overlap, since the
+  sphere approaches only once before it separates or is declared captured) and
+  ``loss_hertz_damping``;
+- adhesion: ``loss_adhesion_damping``;
+- tangential: ``vt``, ``loss_friction`` and ``slide_time`` (the time until rolling first starts);
+- rotation: ``w``; rolling moments: ``loss_rolling``.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from . import _laws as laws
+from ._units import ScaledParameters
+
+
+class Terms(eqx.Module):
+    """Static switches: which states and force terms are compiled."""
+
+    tangential: bool = eqx.field(static=True)
+    rotation: bool = eqx.field(static=True)
+    adhesion: bool = eqx.field(static=True)
+    rolling_moments: str = eqx.field(static=True)  # "none" | "analytical" | "lambda"
+    friction_load: str = eqx.field(static=True)  # "net" | "hertz"
+    slip_width: float = eqx.field(static=True)
+    ring_width: float = eqx.field(static=True)
+
+    @property
+    def has_moments(self):
+        return self.rotation and self.rolling_moments != "none"
+
+
+def initial_state(terms: Terms, vt0, w0, dtype):
+    zero = jnp.zeros((), dtype)
+    y = {"n": zero, "ndot": jnp.ones((), dtype), "peak": zero, "loss_hertz_damping": zero}
+    if terms.adhesion:
+        y["loss_adhesion_damping"] = zero
+    if terms.tangential:
+        y.update(vt=jnp.asarray(vt0, dtype), loss_friction=zero, slide_time=zero)
+        if terms.rotation:
+            y["w"] = jnp.asarray(w0, dtype)
+            if terms.has_moments:
+                y["loss_rolling"] = zero
+    return y
+
+
+def normal_energy(terms: Terms, p: ScaledParameters, y):
+    """``ndot^2/2 + V(n)``: it never increases without spin, and ``< 0`` means capture."""
+    e = 0.5 * y["ndot"] ** 2 + laws.hertz_potential(y["n"], p.radius, p.K)
+    if terms.adhesion:
+        e = e + laws.adhesion_potential(y["n"], p.radius, p.f0)
+    return e
+
+
+def mechanical_energy(terms: Terms, p: ScaledParameters, y):
+    """Normal energy plus tangential and rotational kinetic energy."""
+    e = normal_energy(terms, p, y)
+    if terms.tangential:
+        e = e + 0.5 * y["vt"] ** 2
+        if terms.rotation:
+            e = e + 0.5 * p.inertia * y["w"] ** 2
+    return e
+
+
+def contact_loads(terms: Terms, p: ScaledParameters, y):
+    """Every force and moment on the sphere at state ``y`` (a dict; absent terms are left out)."""
+    n, ndot = y["n"], y["ndot"]
+    w = y["w"] if (terms.tangential and terms.rotation) else jnp.zeros_like(n)
+    f = {}
+    f["F_H"] = laws.hertz_force(n, p.radius, p.K)
+    f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
+    F_n = f["F_H"] + f["F_HD"]
+    if terms.adhesion:
+        # The spin enters the ring only with the analytical moments, where the ring also
+        # yields M_A; otherwise the spin-free ring keeps the adhesion damping dissipative.
+        ring_spin = w if terms.rolling_moments == "analytical" else jnp.zeros_like(w)
+        f["F_A"] = laws.adhesion_force(n, p.radius, p.f0)
+        f["F_AD"], M_A = laws.adhesion_damping(n, ndot, ring_spin, p.radius, p.f0, p.C_A,
+                                               terms.ring_width)
+        F_n = F_n + f["F_A"] + f["F_AD"]
+    f["F_n"] = F_n
+    if not terms.tangential:
+        return f
+    M = jnp.zeros_like(n)
+    if terms.has_moments:
+        if terms.rolling_moments == "analytical":
+            f["M_H"] = laws.hertz_rolling_moment(n, w, p.radius, p.K, p.C_H)
+            f["M_A"] = M_A if terms.adhesion else jnp.zeros_like(n)
+            M = f["M_A"] + f["M_H"]
+        else:
+            M = laws.lambda_moment(n, w, p.radius, p.C_A, p.lam)
+        f["M_roll"] = M
+    if terms.friction_load == "net":
+        load = jnp.abs(F_n)
+    else:
+        load = -f["F_H"]
+    slip = y["vt"] - p.radius * w
+    # Friction that keeps s = 0 in pure rolling: from s' = F_t (1/m + r^2/(m k^2)) - r M/(m k^2).
+    hold = p.radius * M / (p.inertia + p.radius**2) if terms.has_moments else jnp.zeros_like(n)
+    f["slip"] = slip
+    f["F_t"] = laws.friction_force(slip, load, p.friction, hold, terms.slip_width)
+    return f
+
+
+class ImpactField(eqx.Module):
+    """The ODE vector field ``dy/dt`` of one impact, for ``diffrax.ODETerm``."""
+
+    terms: Terms
+
+    def __call__(self, t, y, p: ScaledParameters):
+        terms = self.terms
+        f = contact_loads(terms, p, y)
+        ndot = y["ndot"]
+        dy = {
+            "n": ndot,
+            "ndot": f["F_n"],
+            "peak": jnp.maximum(ndot, 0.0),
+            "loss_hertz_damping": -f["F_HD"] * ndot,
+        }
+        if terms.adhesion:
+            dy["loss_adhesion_damping"] = -f["F_AD"] * ndot
+        if terms.tangential:
+            dy["vt"] = f["F_t"]
+            dy["loss_friction"] = -f["F_t"] * f["slip"]
+            # Latch: slide_time follows t until the slip first falls below the width, then
+            # stays. (Excluded from error control: its derivative jumps once, at that moment.)
+            still_sliding = (jnp.abs(f["slip"]) > terms.slip_width) & (
+                y["slide_time"] >= t * (1 - 1e-4) - 1e-6
+            )
+            dy["slide_time"] = jnp.where(still_sliding, 1.0, 0.0).astype(ndot.dtype)
+            if terms.rotation:
+                M = f.get("M_roll", jnp.zeros_like(ndot))
+                dy["w"] = (-p.radius * f["F_t"] + M) / p.inertia
+                if terms.has_moments:
+                    dy["loss_rolling"] = -M * y["w"]
+        return dy

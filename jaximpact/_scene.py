@@ -1,0 +1,255 @@
+"""The ``Scene``: particle, contact, model switches, default impact and solver settings.
+
+The structure mirrors the TOML scene file section by section. Float parameters are JAX array
+leaves (differentiable, no recompilation when their values change); switches and solver
+settings are static fields (they decide which terms and states are compiled).
+"""
+
+import math
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+INERTIA_FACTOR = 0.4  # k^2 / r^2 of a solid sphere (CONVENTIONS)
+
+RollingMoments = Literal["none", "analytical", "lambda"]
+FrictionLoad = Literal["net", "hertz"]
+SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
+
+
+class SceneError(ValueError):
+    """An invalid scene value; the message names the field and the allowed range."""
+
+
+def _array(x):
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_range(name, value, *, positive=False, nonnegative=False, lower=None, upper=None,
+                upper_inclusive=True):
+    """Raise ``SceneError`` naming ``name`` if a concrete value is non-finite or out of range.
+
+    Traced values are not checked (they are checked where they were concrete, e.g. on loading).
+    """
+    if not _is_concrete(value):
+        return
+    v = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(v)):
+        raise SceneError(f"{name} must be finite, got {_show(v)}")
+    if positive and np.any(v <= 0):
+        raise SceneError(f"{name} must be > 0, got {_show(v)}")
+    if nonnegative and np.any(v < 0):
+        raise SceneError(f"{name} must be >= 0, got {_show(v)}")
+    if lower is not None and np.any(v <= lower):
+        raise SceneError(f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, "
+                         f"got {_show(v)}")
+    if upper is not None and np.any(v > upper if upper_inclusive else v >= upper):
+        raise SceneError(f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, "
+                         f"got {_show(v)}")
+
+
+def _show(v):
+    v = np.asarray(v)
+    return repr(float(v)) if v.ndim == 0 else f"an array with min {v.min()!r}, max {v.max()!r}"
+
+
+class Particle(eqx.Module):
+    """The sphere. **Arguments:** `radius` (m, > 0), `density` (kg/m^3, > 0)."""
+
+    radius: jax.Array = eqx.field(converter=_array)
+    density: jax.Array = eqx.field(converter=_array)
+
+    def __check_init__(self):
+        check_range("particle.radius", self.radius, positive=True)
+        check_range("particle.density", self.density, positive=True)
+
+    @property
+    def mass(self):
+        """Mass ``rho 4/3 pi r^3`` (kg)."""
+        return self.density * (4.0 / 3.0) * jnp.pi * self.radius**3
+
+
+class Contact(eqx.Module):
+    """Contact constants of the sphere-surface pair.
+
+    **Arguments:**
+    - `K`: Hertz stiffness (Pa, > 0), ``K = 4 / (3 pi (k1 + k2))`` (eq. 3-4), i.e. ``4 E*/3``.
+    - `f0`: adhesion ring line force (N/m, >= 0).
+    - `C_A`, `C_H`: adhesion and Hertzian damping constants (s/m, >= 0).
+    - `friction`: Coulomb coefficient (>= 0).
+    """
+
+    K: jax.Array = eqx.field(converter=_array)
+    f0: jax.Array = eqx.field(converter=_array)
+    C_A: jax.Array = eqx.field(converter=_array)
+    C_H: jax.Array = eqx.field(converter=_array)
+    friction: jax.Array = eqx.field(converter=_array)
+
+    def __check_init__(self):
+        check_range("contact.K", self.K, positive=True)
+        for name in ("f0", "C_A", "C_H", "friction"):
+            check_range(f"contact.{name}", getattr(self, name), nonnegative=True)
+
+
+class Model(eqx.Module):
+    """Which physics is in the model.
+
+    **Arguments:**
+    - `rotation`: spin degree of freedom (``False``: the sphere slides without turning).
+    - `adhesion`: ring adhesion force and adhesion damping.
+    - `rolling_moments`: ``"none"``, ``"analytical"`` (peeling ``M_A`` + Hertzian ``M_H``,
+      eq. 12, 18) or ``"lambda"`` (constant-lambda law ``-lambda C_A a w``, eq. 19-22).
+    - `friction_load`: ``"net"`` (``|F_n|``, eq. 6, default) or ``"hertz"`` (compressive Hertz
+      force ``K sqrt(r) n^1.5``).
+    - `lambda_`: the lambda of the constant-lambda law (N m, >= 0); TOML key ``lambda``.
+    """
+
+    rotation: bool = eqx.field(static=True, default=True)
+    adhesion: bool = eqx.field(static=True, default=True)
+    rolling_moments: str = eqx.field(static=True, default="analytical")
+    friction_load: str = eqx.field(static=True, default="net")
+    lambda_: jax.Array = eqx.field(converter=_array, default=0.0)
+
+    def __check_init__(self):
+        if self.rolling_moments not in ("none", "analytical", "lambda"):
+            raise SceneError("model.rolling_moments must be one of 'none', 'analytical', "
+                             f"'lambda', got {self.rolling_moments!r}")
+        if self.friction_load not in ("net", "hertz"):
+            raise SceneError("model.friction_load must be 'net' or 'hertz', got "
+                             f"{self.friction_load!r}")
+        for name in ("rotation", "adhesion"):
+            if not isinstance(getattr(self, name), bool):
+                raise SceneError(f"model.{name} must be true or false, got "
+                                 f"{getattr(self, name)!r}")
+        check_range("model.lambda", self.lambda_, nonnegative=True)
+
+
+class Impact(eqx.Module):
+    """One impact: `speed` (m/s, > 0), `angle_deg` (from the normal, in (-90, 90)),
+    `omega0` (rad/s; positive with a positive angle is the rolling sense)."""
+
+    speed: jax.Array = eqx.field(converter=_array)
+    angle_deg: jax.Array = eqx.field(converter=_array, default=0.0)
+    omega0: jax.Array = eqx.field(converter=_array, default=0.0)
+
+    def __check_init__(self):
+        check_impact(self.speed, self.angle_deg, self.omega0, prefix="impact.")
+
+
+def check_impact(speed, angle_deg, omega0, prefix=""):
+    """Validate concrete impact inputs (raises ``SceneError`` naming the field)."""
+    check_range(f"{prefix}speed", speed, positive=True)
+    check_range(f"{prefix}angle_deg", angle_deg, lower=-90.0, upper=90.0, upper_inclusive=False)
+    check_range(f"{prefix}omega0", omega0)
+
+
+class Solver(eqx.Module):
+    """Numerical settings (all static). Tolerances are dimensionless (Hertz units).
+
+    **Arguments:**
+    - `method`: ``"auto"`` (Tsit5, or Kvaerno5 when the scene is estimated to be stiff),
+      ``"tsit5"``, ``"dopri5"``, ``"dopri8"``, ``"rk4"`` (Runge-Kutta-Gill, fixed step ``dt``),
+      ``"kvaerno3"``, ``"kvaerno5"`` (implicit, for stiff scenes).
+    - `rtol`, `atol`: adaptive-step tolerances; ``None`` picks them from the float precision.
+    - `dt`: step of the fixed-step method, in units of the Hertz time ``n*/v_n``.
+    - `slip_width`: width of the slip-sign regularization, as a fraction of the normal speed.
+    - `ring_width`: width of the adhesion-ring separation switch, fraction of the normal speed.
+    - `max_steps`: step limit per impact; an impact that reaches it is reported as failed.
+    - `stiffness_limit`: with ``method="auto"``, the estimated stiffness (fastest relaxation rate
+      times the Hertz time) above which the implicit solver is used.
+    """
+
+    method: str = eqx.field(static=True, default="auto")
+    rtol: float | None = eqx.field(static=True, default=None)
+    atol: float | None = eqx.field(static=True, default=None)
+    dt: float = eqx.field(static=True, default=0.01)
+    slip_width: float = eqx.field(static=True, default=1e-4)
+    ring_width: float = eqx.field(static=True, default=1e-6)
+    max_steps: int = eqx.field(static=True, default=4096)
+    stiffness_limit: float = eqx.field(static=True, default=200.0)
+
+    def __check_init__(self):
+        methods = ("auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5")
+        if self.method not in methods:
+            raise SceneError(f"solver.method must be one of {methods}, got {self.method!r}")
+        for name in ("rtol", "atol"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and 0 < v < 1):
+                raise SceneError(f"solver.{name} must be in (0, 1), got {v!r}")
+        for name in ("dt", "slip_width", "ring_width", "stiffness_limit"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise SceneError(f"solver.{name} must be a finite number > 0, got {v!r}")
+        if not (isinstance(self.max_steps, int) and self.max_steps >= 16):
+            raise SceneError(f"solver.max_steps must be an integer >= 16, got {self.max_steps!r}")
+
+
+class Scene(eqx.Module):
+    """A complete simulation set-up: ``particle``, ``contact``, ``model``, ``impact``, ``solver``.
+
+    Replace parts with ``eqx.tree_at`` or :meth:`replace`, e.g.
+    ``scene.replace(contact={"f0": 0.0})``.
+    """
+
+    particle: Particle
+    contact: Contact
+    model: Model = Model()
+    impact: Impact = Impact(speed=1.0)
+    solver: Solver = Solver()
+
+    def replace(self, **sections):
+        """A copy with fields replaced: ``scene.replace(contact={"f0": 1.0}, solver={...})``."""
+        new = self
+        for section, fields in sections.items():
+            part = getattr(self, section)
+            kwargs = {f: getattr(part, f) for f in part.__dataclass_fields__}
+            unknown = set(fields) - set(kwargs)
+            if unknown:
+                raise SceneError(f"unknown field(s) {sorted(unknown)} in [{section}]; "
+                                 f"allowed: {sorted(kwargs)}")
+            kwargs.update(fields)
+            new = eqx.tree_at(lambda s, sec=section: getattr(s, sec), new, type(part)(**kwargs))
+        return new
+
+
+def hertz_stiffness(E1, nu1, E2, nu2):
+    """``K = 4 / (3 pi (k1 + k2))`` with ``k_i = (1 - nu_i^2) / (pi E_i)`` (eq. 3-4), in Pa."""
+    for name, v in (("E1", E1), ("E2", E2)):
+        check_range(f"contact.{name}", v, positive=True)
+    for name, v in (("nu1", nu1), ("nu2", nu2)):
+        check_range(f"contact.{name}", v, lower=-1.0, upper=0.5)
+    k1 = (1 - nu1**2) / (math.pi * E1)
+    k2 = (1 - nu2**2) / (math.pi * E2)
+    return 4.0 / (3.0 * math.pi * (k1 + k2))
+
+
+def damping_from_zeta(zeta, radius, density, K, reference_speed):
+    """``C = zeta (r^3 K v^0.5 / m)^-0.4`` (eq. 21, 24): s/m from the paper's zeta at speed v."""
+    mass = density * 4.0 / 3.0 * math.pi * radius**3
+    return zeta * (radius**3 * K * reference_speed**0.5 / mass) ** -0.4
+
+
+def table1_scene(**solver) -> Scene:
+    """The paper's Table 1 scene (Brach, Dunn & Cheng 1999).
+
+    r = 35 um, rho = 8000 kg/m^3, K = 11.4e10 Pa, f0 = 325 N/m, zeta_A = 400 and zeta_H = 100 at
+    1.66 m/s (C_A = 0.882 s/m, C_H = 0.220 s/m), analytical rolling moments. Table 1 gives no
+    friction coefficient: f = 0.3 is this project's choice. Default impact: 1.66 m/s, normal,
+    omega0 = 1e6 deg/s.
+    """
+    r, rho, K, v = 35e-6, 8000.0, 11.4e10, 1.66
+    return Scene(
+        particle=Particle(radius=r, density=rho),
+        contact=Contact(K=K, f0=325.0, C_A=damping_from_zeta(400.0, r, rho, K, v),
+                        C_H=damping_from_zeta(100.0, r, rho, K, v), friction=0.3),
+        model=Model(rotation=True, adhesion=True, rolling_moments="analytical"),
+        impact=Impact(speed=v, angle_deg=0.0, omega0=math.radians(1e6)),
+        solver=Solver(**solver),
+    )

@@ -1,0 +1,233 @@
+"""``simulate``: the one public driver, and the only caller of ``diffrax.diffeqsolve``."""
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from . import _dynamics as dyn
+from ._results import ImpactResult, Status
+from ._scene import INERTIA_FACTOR, Scene, SceneError, _is_concrete, check_impact
+from ._solvers import default_tolerances, make_controller, make_solver
+from ._units import ScaledParameters, hertz_units
+
+PARAMETERS = ("radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda")
+T_MAX = 1e5  # in Hertz times; the step limit, not this, bounds a slow impact
+
+
+def scene_parameters(scene: Scene) -> dict:
+    """The scene's float parameters by their impacts-CSV column names."""
+    return {
+        "radius": scene.particle.radius, "density": scene.particle.density,
+        "K": scene.contact.K, "f0": scene.contact.f0, "C_A": scene.contact.C_A,
+        "C_H": scene.contact.C_H, "friction": scene.contact.friction,
+        "lambda": scene.model.lambda_,
+    }
+
+
+class Integration(eqx.Module):
+    """Resolved numerical settings (static)."""
+
+    method: str = eqx.field(static=True)
+    rtol: float = eqx.field(static=True)
+    atol: float = eqx.field(static=True)
+    dt: float = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+
+
+def _all(values, predicate) -> bool:
+    """``predicate`` holds for every element of every value, known without tracing."""
+    return all(_is_concrete(v) and bool(np.all(predicate(np.asarray(v)))) for v in values)
+
+
+def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
+    """The terms an impact batch needs, from the switches and, where concrete, the values.
+
+    A normal impact without spin needs no tangential or rotational state; zero ``f0`` needs no
+    adhesion terms; zero ``lambda`` (or zero ``C_A`` and ``C_H``) needs no rolling moments.
+    Under ``jit``/``grad`` the values are traced and only the switches decide.
+    """
+    m, s = scene.model, scene.solver
+    tangential = not _all([angle_deg, omega0], lambda v: v == 0)
+    adhesion = m.adhesion and not _all([params["f0"]], lambda v: v == 0)
+    moments = m.rolling_moments
+    if moments == "lambda" and _all([params["lambda"]], lambda v: v == 0):
+        moments = "none"
+    if moments == "analytical" and _all([params["C_A"], params["C_H"]], lambda v: v == 0):
+        moments = "none"
+    rotation = m.rotation and tangential
+    return dyn.Terms(
+        tangential=tangential, rotation=rotation, adhesion=adhesion,
+        rolling_moments=moments if rotation else "none", friction_load=m.friction_load,
+        slip_width=s.slip_width, ring_width=s.ring_width,
+    )
+
+
+def stiffness_estimate(params: dict, speed, angle_deg):
+    """Fastest relaxation rate of the damping and rolling-moment terms, in Hertz units.
+
+    An explicit solver needs of the order of this many steps per impact; ``method="auto"``
+    switches to the implicit Kvaerno5 above ``solver.stiffness_limit``.
+    """
+    p, _ = _scaled(params, speed, angle_deg, 0.0)
+    a = jnp.sqrt(p.radius)  # contact radius at unit overlap
+    rates = [
+        1.25 * p.C_H,  # Hertz damping
+        2 * jnp.pi * p.f0 * p.C_A * a,  # adhesion damping
+        p.lam * p.C_A * a / p.inertia,  # constant-lambda moment
+        jnp.pi * p.f0 * p.C_A * a**3 / p.inertia,  # peeling moment M_A
+        p.K / 5 * p.C_H * p.radius**1.5 / p.inertia,  # Hertzian rolling moment M_H
+    ]
+    return jnp.max(jnp.stack([jnp.max(r) for r in rates]))
+
+
+def _scaled(params, speed, angle_deg, omega0):
+    theta = jnp.deg2rad(angle_deg)
+    v_n = speed * jnp.cos(theta)
+    mass = params["density"] * (4.0 / 3.0) * jnp.pi * params["radius"] ** 3
+    units = hertz_units(mass, params["radius"], params["K"], v_n)
+    p = ScaledParameters.from_si(
+        units, radius=params["radius"], K=params["K"], f0=params["f0"], C_A=params["C_A"],
+        C_H=params["C_H"], friction=params["friction"], lam=params["lambda"],
+        inertia_factor=INERTIA_FACTOR,
+    )
+    return p, units
+
+
+def _error_norm(error):
+    # slide_time only records when rolling starts; its one jump must not drive the step size.
+    return optx.rms_norm({k: v for k, v in error.items() if k != "slide_time"})
+
+
+def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0):
+    """Integrate one impact in Hertz units and return its ``ImpactResult`` fields (SI)."""
+    dtype = jnp.result_type(speed)
+    p, u = _scaled(params, speed, angle_deg, omega0)
+    theta = jnp.deg2rad(angle_deg)
+    v_n, v_t = speed * jnp.cos(theta), speed * jnp.sin(theta)
+    y0 = dyn.initial_state(terms, v_t / v_n, omega0 * u.time, dtype)
+
+    cond = {"separation": lambda t, y, args, **kw: y["n"]}
+    if terms.adhesion:  # without adhesion the normal energy cannot fall below zero
+        cond["capture"] = lambda t, y, args, **kw: dyn.normal_energy(terms, args, y)
+    tol = 100 * float(jnp.finfo(dtype).eps)
+    event = diffrax.Event(cond, root_finder=optx.Newton(rtol=tol, atol=tol), direction=False)
+    controller, dt0 = make_controller(cfg.method, cfg.rtol, cfg.atol, cfg.dt, _error_norm)
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(dyn.ImpactField(terms)), make_solver(cfg.method, dtype),
+        t0=0.0, t1=T_MAX, dt0=dt0, y0=y0, args=p, event=event,
+        stepsize_controller=controller, max_steps=cfg.max_steps, throw=False,
+    )
+    y = jax.tree_util.tree_map(lambda x: x[-1], sol.ys)
+    t_end = sol.ts[-1]
+
+    finite = jnp.all(jnp.stack([jnp.isfinite(v) for v in jax.tree_util.tree_leaves(y)]))
+    event_hit = sol.result == diffrax.RESULTS.event_occurred
+    captured = event_hit & sol.event_mask["capture"] if terms.adhesion else False
+    status = jnp.where(
+        ~finite, Status.NONFINITE,
+        jnp.where(event_hit, jnp.where(captured, Status.CAPTURED, Status.REBOUND),
+                  jnp.where(sol.result == diffrax.RESULTS.max_steps_reached, Status.MAX_STEPS,
+                            Status.SOLVER_ERROR)))
+    failed = status >= Status.MAX_STEPS
+    rebound = status == Status.REBOUND
+
+    nan = jnp.asarray(jnp.nan, dtype)
+    vt = y["vt"] if terms.tangential else jnp.zeros((), dtype)
+    w = y["w"] if terms.rotation else jnp.zeros((), dtype)
+    vn_out = jnp.where(rebound, -y["ndot"], 0.0) * u.speed
+    vt_out = vt * u.speed
+    omega_out = w / u.time
+    if terms.tangential:
+        never_rolled = y["slide_time"] >= t_end * (1 - 1e-4) - 1e-6
+        roll_time = jnp.where(never_rolled, nan, y["slide_time"] * u.time)
+    else:
+        roll_time = jnp.zeros((), dtype)  # no slip at any time
+    safe_vt = jnp.where(v_t == 0, 1.0, v_t)
+    e_unit = u.energy
+    energy_in = 0.5 * (1.0 + (v_t / v_n) ** 2) + 0.5 * p.inertia * (omega0 * u.time) ** 2
+    losses = {
+        k: (y[k] * e_unit if k in y else jnp.zeros((), dtype))
+        for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction",
+                  "loss_rolling")
+    }
+    out = dict(
+        vn_out=vn_out,
+        vt_out=vt_out,
+        omega_out=omega_out,
+        cor_n=vn_out / v_n,
+        cor_t=jnp.where(v_t == 0, nan, vt_out / safe_vt),
+        rebound_angle_deg=jnp.where(rebound, jnp.rad2deg(jnp.arctan2(vt_out, vn_out)), nan),
+        contact_time=t_end * u.time,
+        roll_time=roll_time,
+        max_overlap=y["peak"] * u.length,
+        energy_in=energy_in * e_unit,
+        energy_out=dyn.mechanical_energy(terms, p, y) * e_unit,
+        **losses,
+    )
+    out = {k: jnp.where(failed, nan, v).astype(dtype) for k, v in out.items()}
+    return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
+
+
+@eqx.filter_jit
+def _simulate_flat(terms, cfg, params, speed, angle_deg, omega0):
+    solve = lambda prm, s, a, w: _solve_one(terms, cfg, prm, s, a, w)  # noqa: E731
+    return jax.vmap(solve)(params, speed, angle_deg, omega0)
+
+
+def simulate(scene: Scene, speed=None, angle_deg=None, omega0=None, *,
+             method: str | None = None) -> ImpactResult:
+    """Simulate impacts of the scene's sphere on its surface.
+
+    **Arguments:**
+    - `scene`: a `Scene` (see `load_scene`, `table1_scene`). Any float parameter may be an array
+      broadcastable against the impacts: one value per impact.
+    - `speed`: impact speed (m/s, > 0); default ``scene.impact.speed``.
+    - `angle_deg`: incidence from the surface normal (degrees, in (-90, 90)); default the
+      scene's. Positive: the tangential velocity is along the positive spin's rolling sense.
+    - `omega0`: initial spin (rad/s), signed so that ``v_t == r*omega`` is rolling.
+    - `method`: override ``scene.solver.method``.
+
+    Scalars or arrays (broadcast together; batched internally with ``vmap``).
+
+    **Returns:** an `ImpactResult` with the broadcast shape; check ``status`` (a failed impact
+    has NaN outputs, never silently wrong ones).
+
+    **Raises:** `SceneError` (a `ValueError`) for invalid concrete inputs, naming the field.
+
+    Works under ``jax.jit``, ``jax.vmap`` and ``jax.grad``; changing values does not recompile.
+    """
+    speed = scene.impact.speed if speed is None else speed
+    angle_deg = scene.impact.angle_deg if angle_deg is None else angle_deg
+    omega0 = scene.impact.omega0 if omega0 is None else omega0
+    dtype = jnp.result_type(float)
+    speed, angle_deg, omega0 = (jnp.asarray(x, dtype) for x in (speed, angle_deg, omega0))
+    check_impact(speed, angle_deg, omega0)
+    params = {k: jnp.asarray(v, dtype) for k, v in scene_parameters(scene).items()}
+    shape = jnp.broadcast_shapes(speed.shape, angle_deg.shape, omega0.shape,
+                                 *(v.shape for v in params.values()))
+    size = int(np.prod(shape))
+    flat = lambda x: jnp.broadcast_to(x, shape).reshape(size)  # noqa: E731
+    params = {k: flat(v) for k, v in params.items()}
+    speed, angle_deg, omega0 = flat(speed), flat(angle_deg), flat(omega0)
+
+    terms = required_terms(scene, params, angle_deg, omega0)
+    cfg = _integration(scene, params, speed, angle_deg, dtype, method)
+    result = _simulate_flat(terms, cfg, params, speed, angle_deg, omega0)
+    return jax.tree_util.tree_map(lambda x: x.reshape(shape), result)
+
+
+def _integration(scene, params, speed, angle_deg, dtype, method) -> Integration:
+    s = scene.solver
+    method = method or s.method
+    if method == "auto":
+        method = "tsit5"
+        if _all(list(params.values()) + [speed, angle_deg], lambda v: True):
+            if float(stiffness_estimate(params, speed, angle_deg)) > s.stiffness_limit:
+                method = "kvaerno5"
+    if method not in ("tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"):
+        raise SceneError(f"solver.method {method!r} is not a known method")
+    rtol, atol = default_tolerances(dtype, s.rtol, s.atol)
+    return Integration(method=method, rtol=rtol, atol=atol, dt=s.dt, max_steps=s.max_steps)
