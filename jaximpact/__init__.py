@@ -12,6 +12,9 @@ from ._scene import Solver as Solver
 from ._scene import damping_from_zeta as damping_from_zeta
 from ._scene import hertz_stiffness as hertz_stiffness
 from ._scene import table1_scene as table1_scene
+from ._scene_io import default_scene_path as default_scene_path
+from ._scene_io import load_scene as load_scene
+from ._scene_io import scene_from_dict as scene_from_dict
 from ._simulate import simulate as simulate
 
 __version__ = "0.1.0"

@@ -170,7 +170,7 @@ class Solver(eqx.Module):
     rtol: float | None = eqx.field(static=True, default=None)
     atol: float | None = eqx.field(static=True, default=None)
     dt: float = eqx.field(static=True, default=0.01)
-    slip_width: float = eqx.field(static=True, default=1e-4)
+    slip_width: float = eqx.field(static=True, default=1e-3)
     ring_width: float = eqx.field(static=True, default=1e-6)
     max_steps: int = eqx.field(static=True, default=4096)
     stiffness_limit: float = eqx.field(static=True, default=200.0)

@@ -1,0 +1,151 @@
+"""Reading scene files (TOML) into a ``Scene``, with every value validated by name."""
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+from ._scene import (
+    Contact,
+    Impact,
+    Model,
+    Particle,
+    Scene,
+    SceneError,
+    Solver,
+    damping_from_zeta,
+    hertz_stiffness,
+)
+
+ALLOWED = {
+    "particle": {"radius", "density"},
+    "contact": {"K", "E1", "nu1", "E2", "nu2", "f0", "C_A", "C_H", "zeta_A", "zeta_H",
+                "reference_speed", "friction"},
+    "model": {"rotation", "adhesion", "rolling_moments", "lambda", "friction_load"},
+    "impact": {"speed", "angle_deg", "omega0"},
+    "solver": {"method", "rtol", "atol", "dt", "slip_width", "ring_width", "max_steps",
+               "stiffness_limit"},
+}
+REQUIRED_SECTIONS = ("particle", "contact")
+
+
+def default_scene_path() -> Path:
+    """Path of the embedded default scene (the paper's Table 1)."""
+    return Path(str(resources.files("jaximpact") / "scenes" / "table1.toml"))
+
+
+def load_scene(path=None) -> Scene:
+    """Read a scene file; without a path, the embedded Table 1 scene.
+
+    **Raises:** `SceneError` naming the file and the section.key for unknown keys, missing
+    values, wrong types and out-of-range values.
+    """
+    path = default_scene_path() if path is None else Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise SceneError(f"scene file not found: {path}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: not valid TOML: {err}") from None
+    try:
+        return scene_from_dict(data)
+    except SceneError as err:
+        raise SceneError(f"{path}: {err}") from None
+
+
+def scene_from_dict(data: dict) -> Scene:
+    """Build a ``Scene`` from the nested dict of a scene file (same rules as `load_scene`)."""
+    unknown = set(data) - set(ALLOWED)
+    if unknown:
+        raise SceneError(f"unknown section(s) {sorted(unknown)}; allowed: {sorted(ALLOWED)}")
+    for section, table in data.items():
+        if not isinstance(table, dict):
+            raise SceneError(f"[{section}] must be a table")
+        bad = set(table) - ALLOWED[section]
+        if bad:
+            raise SceneError(f"unknown key(s) {', '.join(f'{section}.{k}' for k in sorted(bad))}"
+                             f"; allowed in [{section}]: {', '.join(sorted(ALLOWED[section]))}")
+    for section in REQUIRED_SECTIONS:
+        if section not in data:
+            raise SceneError(f"missing section [{section}]")
+
+    def number(section, key, default=None):
+        value = data.get(section, {}).get(key, default)
+        if value is None:
+            raise SceneError(f"missing {section}.{key}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SceneError(f"{section}.{key} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise SceneError(f"{section}.{key} must be finite, got {value!r}")
+        return float(value)
+
+    def has(section, key):
+        return key in data.get(section, {})
+
+    particle = Particle(radius=number("particle", "radius"),
+                        density=number("particle", "density"))
+    c = data["contact"]
+    elastic = [k for k in ("E1", "nu1", "E2", "nu2") if k in c]
+    if has("contact", "K") and elastic:
+        raise SceneError("give either contact.K or contact.E1, nu1, E2, nu2, not both")
+    if has("contact", "K"):
+        K = number("contact", "K")
+    elif elastic:
+        K = hertz_stiffness(*(number("contact", k) for k in ("E1", "nu1", "E2", "nu2")))
+    else:
+        raise SceneError("missing contact.K (or contact.E1, nu1, E2, nu2)")
+    if not K > 0:
+        raise SceneError(f"contact.K must be > 0, got {K!r}")
+    damping = {}
+    for name in ("A", "H"):
+        if has("contact", f"C_{name}") and has("contact", f"zeta_{name}"):
+            raise SceneError(f"give either contact.C_{name} or contact.zeta_{name}, not both")
+        if has("contact", f"zeta_{name}"):
+            zeta = number("contact", f"zeta_{name}")
+            if zeta < 0:
+                raise SceneError(f"contact.zeta_{name} must be >= 0, got {zeta!r}")
+            v = number("contact", "reference_speed")
+            if v <= 0:
+                raise SceneError(f"contact.reference_speed must be > 0, got {v!r}")
+            damping[name] = damping_from_zeta(zeta, particle.radius.item(),
+                                              particle.density.item(), K, v)
+        else:
+            damping[name] = number("contact", f"C_{name}", 0.0)
+    if has("contact", "reference_speed") and not any(has("contact", k)
+                                                      for k in ("zeta_A", "zeta_H")):
+        raise SceneError("contact.reference_speed is only used with zeta_A / zeta_H")
+    f0 = number("contact", "f0", 0.0)
+    contact = Contact(K=K, f0=f0, C_A=damping["A"], C_H=damping["H"],
+                      friction=number("contact", "friction", 0.0))
+
+    m = data.get("model", {})
+    for key in ("rotation", "adhesion"):
+        if key in m and not isinstance(m[key], bool):
+            raise SceneError(f"model.{key} must be true or false, got {m[key]!r}")
+    for key in ("rolling_moments", "friction_load"):
+        if key in m and not isinstance(m[key], str):
+            raise SceneError(f"model.{key} must be a string, got {m[key]!r}")
+    model = Model(
+        rotation=m.get("rotation", True),
+        adhesion=m.get("adhesion", f0 > 0),
+        rolling_moments=m.get("rolling_moments", "analytical"),
+        friction_load=m.get("friction_load", "net"),
+        lambda_=number("model", "lambda", 0.0),
+    )
+    if model.rolling_moments == "lambda" and "lambda" not in m:
+        raise SceneError('model.rolling_moments = "lambda" needs model.lambda (N m)')
+
+    impact = Impact(speed=number("impact", "speed", 1.0),
+                    angle_deg=number("impact", "angle_deg", 0.0),
+                    omega0=number("impact", "omega0", 0.0))
+
+    s = data.get("solver", {})
+    if "max_steps" in s and (isinstance(s["max_steps"], bool) or not isinstance(s["max_steps"], int)):
+        raise SceneError(f"solver.max_steps must be an integer, got {s['max_steps']!r}")
+    if "method" in s and not isinstance(s["method"], str):
+        raise SceneError(f"solver.method must be a string, got {s['method']!r}")
+    solver_kwargs = {k: (v if k in ("method", "max_steps") else number("solver", k))
+                     for k, v in s.items()}
+    solver = Solver(**solver_kwargs)
+    return Scene(particle=particle, contact=contact, model=model, impact=impact, solver=solver)
