@@ -55,7 +55,7 @@ def ring_integrals(ndot, b, width=0.0):
     ``ndot`` by ``ndot + width^2 / b_eff``. That shift keeps the regularized ring dissipative
     (power ``ndot*F + w*M <= 0`` exactly) and vanishes for ``|b| >> width``.
     """
-    b_eff = jnp.sqrt(b * b + width * width)
+    b_eff = safe_sqrt(b * b + width * width)
     safe_b_eff = jnp.where(b_eff > 0, b_eff, 1.0)
     u0 = ndot + jnp.where(b_eff > 0, width * width / safe_b_eff, 0.0)
     # c = cos(beta), where beta is the angle at which the ring point has u = 0; clipping c to

@@ -1,0 +1,266 @@
+"""The whole model: closed forms, rigid-body limits, invariants, batching, failures, gradients."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+import jaximpact as ji
+from jaximpact import _simulate
+from jaximpact._results import Status
+
+
+def elastic_scene(radius=1e-3, density=2500.0, K=5e10, friction=0.0, **model):
+    return ji.Scene(
+        particle=ji.Particle(radius=radius, density=density),
+        contact=ji.Contact(K=K, f0=0.0, C_A=0.0, C_H=0.0, friction=friction),
+        model=ji.Model(adhesion=False, rolling_moments="none", **model),
+        solver=ji.Solver(rtol=1e-10, atol=1e-12),  # closed forms test the model, not the solver
+    )
+
+
+def hertz_scales(scene, v_n):
+    r, rho, K = (float(x) for x in (scene.particle.radius, scene.particle.density,
+                                     scene.contact.K))
+    m = rho * 4 / 3 * math.pi * r**3
+    n_star = (5 * m * v_n**2 / (4 * K * math.sqrt(r))) ** 0.4
+    return m, n_star
+
+
+def test_undamped_hertz_closed_form():
+    scene = elastic_scene()
+    v = 2.0
+    res = ji.simulate(scene, v)
+    m, n_star = hertz_scales(scene, v)
+    t_c = 2 * n_star / v * quad(lambda x: 1 / math.sqrt(1 - x**2.5), 0, 1)[0]
+    assert int(res.status) == Status.REBOUND
+    assert float(res.cor_n) == pytest.approx(1.0, abs=1e-6)
+    assert float(res.contact_time) == pytest.approx(t_c, rel=1e-6)
+    assert float(res.max_overlap) == pytest.approx(n_star, rel=1e-6)
+
+
+def test_free_of_contact_forces_no_tangential_change_without_friction():
+    res = ji.simulate(elastic_scene(), 2.0, 35.0, 100.0)
+    assert float(res.vt_out) == pytest.approx(2.0 * math.sin(math.radians(35)), rel=1e-9)
+    assert float(res.omega_out) == pytest.approx(100.0, rel=1e-9)
+
+
+def test_full_sliding_limit():
+    # Large incidence: the slip never reaches zero; dv_t = -f (1 + e) v_n (rigid-body limit).
+    f = 0.1
+    scene = elastic_scene(friction=f).replace(contact={"C_H": 0.05})
+    v, angle = 3.0, 70.0
+    res = ji.simulate(scene, v, angle)
+    v_n, v_t = v * math.cos(math.radians(angle)), v * math.sin(math.radians(angle))
+    e = float(res.cor_n)
+    assert e < 0.99  # the damping is doing something
+    assert np.isnan(float(res.roll_time))
+    assert float(res.vt_out) - v_t == pytest.approx(-f * (1 + e) * v_n, rel=1e-5)
+
+
+@pytest.mark.parametrize("omega0", [0.0, 300.0, -500.0])
+def test_rolling_exit_limit(omega0):
+    # Small incidence, high friction: the sphere leaves rolling, v_t = r w = (5 v_t0 + 2 r w0)/7.
+    scene = elastic_scene(friction=0.8)
+    r = float(scene.particle.radius)
+    v, angle = 1.0, 10.0
+    res = ji.simulate(scene, v, angle, omega0)
+    v_t0 = v * math.sin(math.radians(angle))
+    expected = (5 * v_t0 + 2 * r * omega0) / 7
+    assert np.isfinite(float(res.roll_time))
+    assert float(res.vt_out) == pytest.approx(expected, rel=2e-4, abs=1e-6)
+    assert float(res.omega_out) * r == pytest.approx(expected, rel=2e-4, abs=1e-6)
+
+
+@pytest.mark.parametrize("moments", ["none", "analytical", "lambda"])
+@pytest.mark.parametrize("load", ["net", "hertz"])
+def test_energy_ledger_closes(table1, moments, load):
+    scene = table1.replace(model={"rolling_moments": moments, "friction_load": load,
+                                  "lambda_": 1e-5})
+    res = ji.simulate(scene, jnp.array([0.3, 1.66, 5.0, 1.66]), jnp.array([0.0, 40, -40, 75]),
+                      jnp.array([1e4, 1e4, 1e4, -3e3]))
+    assert np.all(np.asarray(res.status) == Status.REBOUND)
+    losses = (res.loss_hertz_damping + res.loss_adhesion_damping + res.loss_friction
+              + res.loss_rolling)
+    # Closes to 1e-6 of the energy brought in (float64, default tolerances).
+    residual = np.abs(res.energy_in - res.energy_out - losses) / res.energy_in
+    assert np.all(residual < 1e-6)
+    assert np.all(res.loss_hertz_damping >= 0) and np.all(res.loss_friction >= 0)
+    assert np.all(res.loss_rolling >= 0)
+    assert np.all(res.loss_adhesion_damping + res.loss_rolling >= 0)
+    assert np.all(res.energy_out < res.energy_in)
+
+
+def test_paper_figure5_spin_directions(table1):
+    # Fig. 5 (analytical moments): the spin keeps its sign at 0 and +40 deg, reverses at -40.
+    w0 = math.radians(1e6)
+    res = ji.simulate(table1, 1.66, jnp.array([0.0, 40.0, -40.0]), w0)
+    w = np.asarray(res.omega_out)
+    assert w[0] > 0 and w[1] > 0 and w[2] < 0
+    # Fig. 4: rolling starts well inside the contact, of the order of 100 ns.
+    assert np.all(res.roll_time < res.contact_time)
+    assert 20e-9 < float(res.roll_time[0]) < 300e-9
+
+
+def test_paper_figure3_small_lambda_changes_little(table1):
+    # Fig. 3 (log scale): the final spin does not change visibly for lambda < 1e-7 N m.
+    w0 = math.radians(1e6)
+    angles = jnp.array([0.0, 40.0, -40.0])
+    none = ji.simulate(table1.replace(model={"rolling_moments": "none"}), 1.66, angles, w0)
+    for lam, tol in ((1e-10, 1e-4), (1e-8, 1e-2), (1e-7, 5e-2)):
+        res = ji.simulate(table1.replace(model={"rolling_moments": "lambda", "lambda_": lam}),
+                          1.66, angles, w0)
+        np.testing.assert_allclose(res.omega_out, none.omega_out, rtol=tol)
+    big = ji.simulate(table1.replace(model={"rolling_moments": "lambda", "lambda_": 1e-4}),
+                      1.66, angles, w0)
+    # Fig. 5: a large lambda stops the spin during the contact.
+    assert np.all(np.abs(big.omega_out) < 0.05 * w0)
+
+
+def test_capture_below_and_rebound_above_capture_speed(table1):
+    res = ji.simulate(table1, jnp.array([0.01, 0.05, 1.0]), 0.0, 0.0)
+    st = np.asarray(res.status)
+    assert st[0] == Status.CAPTURED and st[2] == Status.REBOUND
+    assert float(res.cor_n[0]) == 0.0 and np.isnan(float(res.rebound_angle_deg[0]))
+    # Captured: the normal energy is negative when capture is declared.
+    assert float(res.energy_out[0]) <= float(res.energy_in[0])
+
+
+def test_vmap_equals_loop_with_mixed_statuses(table1):
+    speeds = jnp.array([0.01, 1.66, 3.0, 0.2])
+    angles = jnp.array([0.0, 40.0, -30.0, 60.0])
+    batch = ji.simulate(table1, speeds, angles, 1e3)
+    for i in range(len(speeds)):
+        one = ji.simulate(table1, speeds[i], angles[i], 1e3)
+        for name in ("status", "cor_n", "vt_out", "omega_out", "contact_time"):
+            # Equal up to rounding, which the adaptive step choice can amplify to ~rtol.
+            np.testing.assert_allclose(getattr(batch, name)[i], getattr(one, name), rtol=1e-6)
+
+
+def test_forced_failure_is_reported_not_silent(table1):
+    scene = table1.replace(solver={"max_steps": 16})
+    res = ji.simulate(scene, jnp.array([1.66, 1.0]), jnp.array([40.0, 0.0]), 1e4)
+    assert np.all(np.asarray(res.status) == Status.MAX_STEPS)
+    assert np.all(np.isnan(np.asarray(res.cor_n)))
+    assert list(res.columns()["status"]) == ["failed", "failed"]
+
+
+def test_no_recompilation_when_values_change(table1):
+    traces = []
+    original = _simulate._solve_one
+
+    def counting(*args):
+        traces.append(1)
+        return original(*args)
+
+    _simulate._solve_one = counting
+    try:
+        speeds = jnp.array([1.0, 2.0])
+        ji.simulate(table1, speeds, 30.0, 1e3)
+        n = len(traces)
+        ji.simulate(table1.replace(contact={"f0": 100.0, "C_H": 0.5}), speeds * 1.5, 20.0, 5e2)
+        ji.simulate(table1.replace(particle={"radius": 20e-6}), speeds * 0.5, -10.0, 1e2)
+        assert len(traces) == n
+    finally:
+        _simulate._solve_one = original
+
+
+def test_leaves_out_unneeded_terms(table1):
+    params = {k: jnp.asarray(v) for k, v in _simulate.scene_parameters(table1).items()}
+    normal = _simulate.required_terms(table1, params, jnp.zeros(3), jnp.zeros(3))
+    assert not normal.tangential and not normal.rotation
+    no_adhesion = table1.replace(contact={"f0": 0.0})
+    p2 = {k: jnp.asarray(v) for k, v in _simulate.scene_parameters(no_adhesion).items()}
+    terms = _simulate.required_terms(no_adhesion, p2, jnp.ones(3), jnp.zeros(3))
+    assert terms.tangential and not terms.adhesion
+    # Normal-only and full models agree on a normal impact without spin.
+    full = ji.simulate(table1, jnp.array([0.5, 2.0]), jnp.array([0.0, 0.0]), 0.0)
+    trick = ji.simulate(table1, jnp.array([0.5, 2.0]), jnp.array([0.0, 1e-12]), 0.0)
+    np.testing.assert_allclose(full.cor_n, trick.cor_n, rtol=1e-5)
+
+
+def test_float32_close_to_float64(table1):
+    speeds, angles = np.array([0.5, 1.66, 4.0]), np.array([0.0, 40.0, -40.0])
+    ref = ji.simulate(table1, speeds, angles, 1e4)
+    with jax.enable_x64(False):
+        scene32 = ji.table1_scene()
+        res = ji.simulate(scene32, speeds, angles, 1e4)
+        assert res.cor_n.dtype == jnp.float32
+    np.testing.assert_allclose(res.cor_n, ref.cor_n, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(res.vt_out) / speeds, np.asarray(ref.vt_out) / speeds,
+                               atol=1e-3)
+
+
+# Finite differences of an adaptive solve are only as good as its tolerance: compare at 1e-11.
+TIGHT = {"rtol": 1e-11, "atol": 1e-13}
+
+
+def test_gradients_match_finite_differences(table1):
+    table1 = table1.replace(solver=TIGHT)
+
+    def cor(params):
+        f0, C_H, friction = params
+        scene = table1.replace(contact={"f0": f0, "C_H": C_H, "friction": friction})
+        res = ji.simulate(scene, jnp.array([1.0, 2.0]), jnp.array([0.0, 40.0]), 1e4)
+        return jnp.sum(res.cor_n) + jnp.sum(res.vt_out)
+
+    x = jnp.array([325.0, 0.22, 0.3])
+    g = jax.grad(cor)(x)
+    for i in range(3):
+        h = 1e-3 * float(x[i])
+        e = jnp.zeros(3).at[i].set(h)
+        fd = (cor(x + e) - cor(x - e)) / (2 * h)
+        assert float(g[i]) == pytest.approx(float(fd), rel=2e-3, abs=1e-6)
+
+
+def test_gradient_wrt_impact_inputs(table1):
+    table1 = table1.replace(solver=TIGHT)
+    f = lambda v, a: ji.simulate(table1, v, a, 1e4).cor_n
+    g_v, g_a = jax.grad(f, argnums=(0, 1))(1.5, 20.0)
+    for g, args, i in ((g_v, (1.5, 20.0), 0), (g_a, (1.5, 20.0), 1)):
+        h = 1e-3 * args[i]
+        up = list(args)
+        dn = list(args)
+        up[i] += h
+        dn[i] -= h
+        fd = (f(*up) - f(*dn)) / (2 * h)
+        assert float(g) == pytest.approx(float(fd), rel=2e-3, abs=1e-7)
+
+
+def test_works_under_jit_and_vmap(table1):
+    jitted = jax.jit(lambda s, v: ji.simulate(s, v, 30.0, 0.0).cor_n)
+    direct = ji.simulate(table1, jnp.array([1.0, 2.0]), 30.0, 0.0).cor_n
+    np.testing.assert_allclose(jitted(table1, jnp.array([1.0, 2.0])), direct, rtol=1e-6)
+    vm = jax.vmap(lambda v: ji.simulate(table1, v, 30.0, 0.0).cor_n)(jnp.array([1.0, 2.0]))
+    np.testing.assert_allclose(vm, direct, rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [({"speed": -1.0}, "speed"), ({"speed": 0.0}, "speed"), ({"angle_deg": 90.0}, "angle_deg"),
+     ({"angle_deg": -95.0}, "angle_deg"), ({"omega0": float("nan")}, "omega0"),
+     ({"speed": float("inf")}, "speed")],
+)
+def test_bad_impact_inputs(table1, kwargs, field):
+    args = {"speed": 1.0, "angle_deg": 0.0, "omega0": 0.0, **kwargs}
+    with pytest.raises(ji.SceneError, match=field):
+        ji.simulate(table1, **args)
+
+
+@pytest.mark.parametrize(
+    "section, values, field",
+    [("particle", {"radius": 0.0}, "particle.radius"),
+     ("particle", {"density": -1.0}, "particle.density"),
+     ("contact", {"K": -5.0}, "contact.K"), ("contact", {"f0": -1.0}, "contact.f0"),
+     ("contact", {"C_A": -1.0}, "contact.C_A"), ("contact", {"C_H": float("nan")}, "contact.C_H"),
+     ("contact", {"friction": -0.1}, "contact.friction"),
+     ("model", {"lambda_": -1.0}, "model.lambda"),
+     ("model", {"rolling_moments": "bogus"}, "model.rolling_moments"),
+     ("solver", {"rtol": 2.0}, "solver.rtol"), ("solver", {"method": "euler"}, "solver.method")],
+)
+def test_bad_scene_values(table1, section, values, field):
+    with pytest.raises(ji.SceneError, match=field.replace(".", r"\.")):
+        table1.replace(**{section: values})
