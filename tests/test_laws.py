@@ -361,20 +361,13 @@ ADHESION_SWITCHES = {
     "ndot=-a|w|,w<0": (N_TYPICAL, -_A * W_TYPICAL, -W_TYPICAL),
     "ndot=0,partial": (N_TYPICAL, 0.0, W_TYPICAL),
 }
-B_IS_ZERO = {"ndot=0,w=0", "ndot<0,w=0", "n=0", "n=0,ndot=0,w=0"}
-
-WIDTH0_NAN_REASON = (
-    "ring_integrals with width=0 computes b_eff = jnp.sqrt(b*b + 0), whose derivative at b = 0 "
-    "(w = 0 or n = 0) is 0 * inf = NaN; safe_sqrt there would give finite derivatives"
-)
 
 
 def adhesion_switch_cases():
+    # width = 0 with b = w a = 0 (w = 0 or n = 0) once gave NaN derivatives through
+    # sqrt(b^2 + 0); these cases guard the safe square root that fixed it.
     for (name, point), width in itertools.product(ADHESION_SWITCHES.items(), [0.0, RING_WIDTH]):
-        marks = []
-        if width == 0.0 and name in B_IS_ZERO:
-            marks = [pytest.mark.xfail(strict=True, reason=WIDTH0_NAN_REASON)]
-        yield pytest.param(point, width, id=f"{name}-width={width}", marks=marks)
+        yield pytest.param(point, width, id=f"{name}-width={width}")
 
 
 def value_and_derivatives(f):
