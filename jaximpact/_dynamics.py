@@ -81,8 +81,9 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
         # yields M_A; otherwise the spin-free ring keeps the adhesion damping dissipative.
         ring_spin = w if terms.rolling_moments == "analytical" else jnp.zeros_like(w)
         f["F_A"] = laws.adhesion_force(n, p.radius, p.f0)
-        f["F_AD"], M_A = laws.adhesion_damping(n, ndot, ring_spin, p.radius, p.f0, p.C_A,
-                                               terms.ring_width)
+        f["F_AD"], M_A = laws.adhesion_damping(
+            n, ndot, ring_spin, p.radius, p.f0, p.C_A, terms.ring_width
+        )
         F_n = F_n + f["F_A"] + f["F_AD"]
     f["F_n"] = F_n
     if not terms.tangential:

@@ -23,9 +23,21 @@ class Status:
 
 
 OUTPUT_FIELDS = (
-    "vn_out", "vt_out", "omega_out", "cor_n", "cor_t", "rebound_angle_deg", "contact_time",
-    "roll_time", "max_overlap", "energy_in", "energy_out", "loss_hertz_damping",
-    "loss_adhesion_damping", "loss_friction", "loss_rolling",
+    "vn_out",
+    "vt_out",
+    "omega_out",
+    "cor_n",
+    "cor_t",
+    "rebound_angle_deg",
+    "contact_time",
+    "roll_time",
+    "max_overlap",
+    "energy_in",
+    "energy_out",
+    "loss_hertz_damping",
+    "loss_adhesion_damping",
+    "loss_friction",
+    "loss_rolling",
 )
 
 

@@ -32,8 +32,9 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def check_range(name, value, *, positive=False, nonnegative=False, lower=None, upper=None,
-                upper_inclusive=True):
+def check_range(
+    name, value, *, positive=False, nonnegative=False, lower=None, upper=None, upper_inclusive=True
+):
     """Raise ``SceneError`` naming ``name`` if a concrete value is non-finite or out of range.
 
     Traced values are not checked (they are checked where they were concrete, e.g. on loading).
@@ -48,11 +49,13 @@ def check_range(name, value, *, positive=False, nonnegative=False, lower=None, u
     if nonnegative and np.any(v < 0):
         raise SceneError(f"{name} must be >= 0, got {_show(v)}")
     if lower is not None and np.any(v <= lower):
-        raise SceneError(f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, "
-                         f"got {_show(v)}")
+        raise SceneError(
+            f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, got {_show(v)}"
+        )
     if upper is not None and np.any(v > upper if upper_inclusive else v >= upper):
-        raise SceneError(f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, "
-                         f"got {_show(v)}")
+        raise SceneError(
+            f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, got {_show(v)}"
+        )
 
 
 def _show(v):
@@ -119,15 +122,17 @@ class Model(eqx.Module):
 
     def __check_init__(self):
         if self.rolling_moments not in ("none", "analytical", "lambda"):
-            raise SceneError("model.rolling_moments must be one of 'none', 'analytical', "
-                             f"'lambda', got {self.rolling_moments!r}")
+            raise SceneError(
+                "model.rolling_moments must be one of 'none', 'analytical', "
+                f"'lambda', got {self.rolling_moments!r}"
+            )
         if self.friction_load not in ("net", "hertz"):
-            raise SceneError("model.friction_load must be 'net' or 'hertz', got "
-                             f"{self.friction_load!r}")
+            raise SceneError(
+                f"model.friction_load must be 'net' or 'hertz', got {self.friction_load!r}"
+            )
         for name in ("rotation", "adhesion"):
             if not isinstance(getattr(self, name), bool):
-                raise SceneError(f"model.{name} must be true or false, got "
-                                 f"{getattr(self, name)!r}")
+                raise SceneError(f"model.{name} must be true or false, got {getattr(self, name)!r}")
         check_range("model.lambda", self.lambda_, nonnegative=True)
 
 
@@ -212,8 +217,9 @@ class Scene(eqx.Module):
             kwargs = {f: getattr(part, f) for f in part.__dataclass_fields__}
             unknown = set(fields) - set(kwargs)
             if unknown:
-                raise SceneError(f"unknown field(s) {sorted(unknown)} in [{section}]; "
-                                 f"allowed: {sorted(kwargs)}")
+                raise SceneError(
+                    f"unknown field(s) {sorted(unknown)} in [{section}]; allowed: {sorted(kwargs)}"
+                )
             kwargs.update(fields)
             new = eqx.tree_at(lambda s, sec=section: getattr(s, sec), new, type(part)(**kwargs))
         return new
@@ -247,8 +253,13 @@ def table1_scene(**solver) -> Scene:
     r, rho, K, v = 35e-6, 8000.0, 11.4e10, 1.66
     return Scene(
         particle=Particle(radius=r, density=rho),
-        contact=Contact(K=K, f0=325.0, C_A=damping_from_zeta(400.0, r, rho, K, v),
-                        C_H=damping_from_zeta(100.0, r, rho, K, v), friction=0.3),
+        contact=Contact(
+            K=K,
+            f0=325.0,
+            C_A=damping_from_zeta(400.0, r, rho, K, v),
+            C_H=damping_from_zeta(100.0, r, rho, K, v),
+            friction=0.3,
+        ),
         model=Model(rotation=True, adhesion=True, rolling_moments="analytical"),
         impact=Impact(speed=v, angle_deg=0.0, omega0=math.radians(1e6)),
         solver=Solver(**solver),

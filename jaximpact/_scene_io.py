@@ -19,12 +19,32 @@ from ._scene import (
 
 ALLOWED = {
     "particle": {"radius", "density"},
-    "contact": {"K", "E1", "nu1", "E2", "nu2", "f0", "C_A", "C_H", "zeta_A", "zeta_H",
-                "reference_speed", "friction"},
+    "contact": {
+        "K",
+        "E1",
+        "nu1",
+        "E2",
+        "nu2",
+        "f0",
+        "C_A",
+        "C_H",
+        "zeta_A",
+        "zeta_H",
+        "reference_speed",
+        "friction",
+    },
     "model": {"rotation", "adhesion", "rolling_moments", "lambda", "friction_load"},
     "impact": {"speed", "angle_deg", "omega0"},
-    "solver": {"method", "rtol", "atol", "dt", "slip_width", "ring_width", "max_steps",
-               "stiffness_limit"},
+    "solver": {
+        "method",
+        "rtol",
+        "atol",
+        "dt",
+        "slip_width",
+        "ring_width",
+        "max_steps",
+        "stiffness_limit",
+    },
 }
 REQUIRED_SECTIONS = ("particle", "contact")
 
@@ -64,8 +84,10 @@ def scene_from_dict(data: dict) -> Scene:
             raise SceneError(f"[{section}] must be a table")
         bad = set(table) - ALLOWED[section]
         if bad:
-            raise SceneError(f"unknown key(s) {', '.join(f'{section}.{k}' for k in sorted(bad))}"
-                             f"; allowed in [{section}]: {', '.join(sorted(ALLOWED[section]))}")
+            raise SceneError(
+                f"unknown key(s) {', '.join(f'{section}.{k}' for k in sorted(bad))}"
+                f"; allowed in [{section}]: {', '.join(sorted(ALLOWED[section]))}"
+            )
     for section in REQUIRED_SECTIONS:
         if section not in data:
             raise SceneError(f"missing section [{section}]")
@@ -83,8 +105,7 @@ def scene_from_dict(data: dict) -> Scene:
     def has(section, key):
         return key in data.get(section, {})
 
-    particle = Particle(radius=number("particle", "radius"),
-                        density=number("particle", "density"))
+    particle = Particle(radius=number("particle", "radius"), density=number("particle", "density"))
     c = data["contact"]
     elastic = [k for k in ("E1", "nu1", "E2", "nu2") if k in c]
     if has("contact", "K") and elastic:
@@ -108,16 +129,19 @@ def scene_from_dict(data: dict) -> Scene:
             v = number("contact", "reference_speed")
             if v <= 0:
                 raise SceneError(f"contact.reference_speed must be > 0, got {v!r}")
-            damping[name] = damping_from_zeta(zeta, particle.radius.item(),
-                                              particle.density.item(), K, v)
+            damping[name] = damping_from_zeta(
+                zeta, particle.radius.item(), particle.density.item(), K, v
+            )
         else:
             damping[name] = number("contact", f"C_{name}", 0.0)
-    if has("contact", "reference_speed") and not any(has("contact", k)
-                                                      for k in ("zeta_A", "zeta_H")):
+    if has("contact", "reference_speed") and not any(
+        has("contact", k) for k in ("zeta_A", "zeta_H")
+    ):
         raise SceneError("contact.reference_speed is only used with zeta_A / zeta_H")
     f0 = number("contact", "f0", 0.0)
-    contact = Contact(K=K, f0=f0, C_A=damping["A"], C_H=damping["H"],
-                      friction=number("contact", "friction", 0.0))
+    contact = Contact(
+        K=K, f0=f0, C_A=damping["A"], C_H=damping["H"], friction=number("contact", "friction", 0.0)
+    )
 
     m = data.get("model", {})
     for key in ("rotation", "adhesion"):
@@ -136,16 +160,21 @@ def scene_from_dict(data: dict) -> Scene:
     if model.rolling_moments == "lambda" and "lambda" not in m:
         raise SceneError('model.rolling_moments = "lambda" needs model.lambda (N m)')
 
-    impact = Impact(speed=number("impact", "speed", 1.0),
-                    angle_deg=number("impact", "angle_deg", 0.0),
-                    omega0=number("impact", "omega0", 0.0))
+    impact = Impact(
+        speed=number("impact", "speed", 1.0),
+        angle_deg=number("impact", "angle_deg", 0.0),
+        omega0=number("impact", "omega0", 0.0),
+    )
 
     s = data.get("solver", {})
-    if "max_steps" in s and (isinstance(s["max_steps"], bool) or not isinstance(s["max_steps"], int)):
+    if "max_steps" in s and (
+        isinstance(s["max_steps"], bool) or not isinstance(s["max_steps"], int)
+    ):
         raise SceneError(f"solver.max_steps must be an integer, got {s['max_steps']!r}")
     if "method" in s and not isinstance(s["method"], str):
         raise SceneError(f"solver.method must be a string, got {s['method']!r}")
-    solver_kwargs = {k: (v if k in ("method", "max_steps") else number("solver", k))
-                     for k, v in s.items()}
+    solver_kwargs = {
+        k: (v if k in ("method", "max_steps") else number("solver", k)) for k, v in s.items()
+    }
     solver = Solver(**solver_kwargs)
     return Scene(particle=particle, contact=contact, model=model, impact=impact, solver=solver)

@@ -20,9 +20,13 @@ T_MAX = 1e5  # in Hertz times; the step limit, not this, bounds a slow impact
 def scene_parameters(scene: Scene) -> dict:
     """The scene's float parameters by their impacts-CSV column names."""
     return {
-        "radius": scene.particle.radius, "density": scene.particle.density,
-        "K": scene.contact.K, "f0": scene.contact.f0, "C_A": scene.contact.C_A,
-        "C_H": scene.contact.C_H, "friction": scene.contact.friction,
+        "radius": scene.particle.radius,
+        "density": scene.particle.density,
+        "K": scene.contact.K,
+        "f0": scene.contact.f0,
+        "C_A": scene.contact.C_A,
+        "C_H": scene.contact.C_H,
+        "friction": scene.contact.friction,
         "lambda": scene.model.lambda_,
     }
 
@@ -59,9 +63,13 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         moments = "none"
     rotation = m.rotation and tangential
     return dyn.Terms(
-        tangential=tangential, rotation=rotation, adhesion=adhesion,
-        rolling_moments=moments if rotation else "none", friction_load=m.friction_load,
-        slip_width=s.slip_width, ring_width=s.ring_width,
+        tangential=tangential,
+        rotation=rotation,
+        adhesion=adhesion,
+        rolling_moments=moments if rotation else "none",
+        friction_load=m.friction_load,
+        slip_width=s.slip_width,
+        ring_width=s.ring_width,
     )
 
 
@@ -89,8 +97,14 @@ def _scaled(params, speed, angle_deg, omega0):
     mass = params["density"] * (4.0 / 3.0) * jnp.pi * params["radius"] ** 3
     units = hertz_units(mass, params["radius"], params["K"], v_n)
     p = ScaledParameters.from_si(
-        units, radius=params["radius"], K=params["K"], f0=params["f0"], C_A=params["C_A"],
-        C_H=params["C_H"], friction=params["friction"], lam=params["lambda"],
+        units,
+        radius=params["radius"],
+        K=params["K"],
+        f0=params["f0"],
+        C_A=params["C_A"],
+        C_H=params["C_H"],
+        friction=params["friction"],
+        lam=params["lambda"],
         inertia_factor=INERTIA_FACTOR,
     )
     return p, units
@@ -116,9 +130,17 @@ def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_de
     event = diffrax.Event(cond, root_finder=optx.Newton(rtol=tol, atol=tol), direction=False)
     controller, dt0 = make_controller(cfg.method, cfg.rtol, cfg.atol, cfg.dt, _error_norm)
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(dyn.ImpactField(terms)), make_solver(cfg.method, dtype),
-        t0=0.0, t1=T_MAX, dt0=dt0, y0=y0, args=p, event=event,
-        stepsize_controller=controller, max_steps=cfg.max_steps, throw=False,
+        diffrax.ODETerm(dyn.ImpactField(terms)),
+        make_solver(cfg.method, dtype),
+        t0=0.0,
+        t1=T_MAX,
+        dt0=dt0,
+        y0=y0,
+        args=p,
+        event=event,
+        stepsize_controller=controller,
+        max_steps=cfg.max_steps,
+        throw=False,
     )
     y = jax.tree_util.tree_map(lambda x: x[-1], sol.ys)
     t_end = sol.ts[-1]
@@ -127,10 +149,18 @@ def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_de
     event_hit = sol.result == diffrax.RESULTS.event_occurred
     captured = event_hit & sol.event_mask["capture"] if terms.adhesion else False
     status = jnp.where(
-        ~finite, Status.NONFINITE,
-        jnp.where(event_hit, jnp.where(captured, Status.CAPTURED, Status.REBOUND),
-                  jnp.where(sol.result == diffrax.RESULTS.max_steps_reached, Status.MAX_STEPS,
-                            Status.SOLVER_ERROR)))
+        ~finite,
+        Status.NONFINITE,
+        jnp.where(
+            event_hit,
+            jnp.where(captured, Status.CAPTURED, Status.REBOUND),
+            jnp.where(
+                sol.result == diffrax.RESULTS.max_steps_reached,
+                Status.MAX_STEPS,
+                Status.SOLVER_ERROR,
+            ),
+        ),
+    )
     failed = status >= Status.MAX_STEPS
     rebound = status == Status.REBOUND
 
@@ -150,8 +180,7 @@ def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_de
     energy_in = 0.5 * (1.0 + (v_t / v_n) ** 2) + 0.5 * p.inertia * (omega0 * u.time) ** 2
     losses = {
         k: (y[k] * e_unit if k in y else jnp.zeros((), dtype))
-        for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction",
-                  "loss_rolling")
+        for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
     }
     out = dict(
         vn_out=vn_out,
@@ -177,8 +206,9 @@ def _simulate_flat(terms, cfg, params, speed, angle_deg, omega0):
     return jax.vmap(solve)(params, speed, angle_deg, omega0)
 
 
-def simulate(scene: Scene, speed=None, angle_deg=None, omega0=None, *,
-             method: str | None = None) -> ImpactResult:
+def simulate(
+    scene: Scene, speed=None, angle_deg=None, omega0=None, *, method: str | None = None
+) -> ImpactResult:
     """Simulate impacts of the scene's sphere on its surface.
 
     **Arguments:**
@@ -206,8 +236,9 @@ def simulate(scene: Scene, speed=None, angle_deg=None, omega0=None, *,
     speed, angle_deg, omega0 = (jnp.asarray(x, dtype) for x in (speed, angle_deg, omega0))
     check_impact(speed, angle_deg, omega0)
     params = {k: jnp.asarray(v, dtype) for k, v in scene_parameters(scene).items()}
-    shape = jnp.broadcast_shapes(speed.shape, angle_deg.shape, omega0.shape,
-                                 *(v.shape for v in params.values()))
+    shape = jnp.broadcast_shapes(
+        speed.shape, angle_deg.shape, omega0.shape, *(v.shape for v in params.values())
+    )
     size = int(np.prod(shape))
     flat = lambda x: jnp.broadcast_to(x, shape).reshape(size)  # noqa: E731
     params = {k: flat(v) for k, v in params.items()}

@@ -28,7 +28,7 @@ class HertzUnits(eqx.Module):
 
 
 def hertz_units(mass, radius, K, normal_speed) -> HertzUnits:
-    """Units of an impact at ``normal_speed`` (m/s) of a sphere of ``mass``, ``radius``, on ``K``."""
+    """Hertz units of an impact at ``normal_speed`` (m/s) of a sphere on a surface ``K``."""
     length = (5.0 * mass * normal_speed**2 / (4.0 * K * jnp.sqrt(radius))) ** 0.4
     return HertzUnits(length=length, time=length / normal_speed, mass=mass)
 

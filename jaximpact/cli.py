@@ -4,10 +4,21 @@ import argparse
 import math
 import sys
 
-SECTION_OF = {"radius": "particle", "density": "particle", "K": "contact", "f0": "contact",
-              "C_A": "contact", "C_H": "contact", "friction": "contact", "lambda": "model"}
-PAPER_IMPACTS = {"speed": [1.66] * 3, "angle_deg": [0.0, 40.0, -40.0],
-                 "omega0": [math.radians(1e6)] * 3}
+SECTION_OF = {
+    "radius": "particle",
+    "density": "particle",
+    "K": "contact",
+    "f0": "contact",
+    "C_A": "contact",
+    "C_H": "contact",
+    "friction": "contact",
+    "lambda": "model",
+}
+PAPER_IMPACTS = {
+    "speed": [1.66] * 3,
+    "angle_deg": [0.0, 40.0, -40.0],
+    "omega0": [math.radians(1e6)] * 3,
+}
 
 
 def scene_with_overrides(scene, overrides: dict):
@@ -47,24 +58,40 @@ def cmd_simulate(args) -> int:
     if args.impacts:
         table = read_impacts(args.impacts)
     elif args.scene is None:
-        table = ImpactTable(**{k: np.array(v) for k, v in PAPER_IMPACTS.items()},
-                            columns=tuple(PAPER_IMPACTS))
+        table = ImpactTable(
+            **{k: np.array(v) for k, v in PAPER_IMPACTS.items()}, columns=tuple(PAPER_IMPACTS)
+        )
     else:
         i = scene.impact
-        table = ImpactTable(speed=np.atleast_1d(float(i.speed)),
-                            angle_deg=np.atleast_1d(float(i.angle_deg)),
-                            omega0=np.atleast_1d(float(i.omega0)),
-                            columns=("speed", "angle_deg", "omega0"))
+        table = ImpactTable(
+            speed=np.atleast_1d(float(i.speed)),
+            angle_deg=np.atleast_1d(float(i.angle_deg)),
+            omega0=np.atleast_1d(float(i.omega0)),
+            columns=("speed", "angle_deg", "omega0"),
+        )
     scene = scene_with_overrides(scene, dict(table.overrides))
     result = simulate(scene, table.speed, table.angle_deg, table.omega0)
     columns = result.columns()
     if args.output:
         write_results(args.output, table.as_columns(), columns)
     shown = {**table.as_columns(), **columns}
-    names = ["speed", "angle_deg", "omega0", "status", "cor_n", "vt_out", "omega_out",
-             "rebound_angle_deg", "contact_time", "roll_time", "max_overlap"]
-    print(f"scene: {args.scene or 'embedded Table 1 (Brach, Dunn & Cheng 1999)'}; "
-          f"{len(table.speed)} impact(s); SI units")
+    names = [
+        "speed",
+        "angle_deg",
+        "omega0",
+        "status",
+        "cor_n",
+        "vt_out",
+        "omega_out",
+        "rebound_angle_deg",
+        "contact_time",
+        "roll_time",
+        "max_overlap",
+    ]
+    print(
+        f"scene: {args.scene or 'embedded Table 1 (Brach, Dunn & Cheng 1999)'}; "
+        f"{len(table.speed)} impact(s); SI units"
+    )
     if len(table.speed) <= 50 or args.output is None:
         print(_table(shown, names))
     failed = int(np.sum(columns["status"] == "failed"))
@@ -78,13 +105,19 @@ def cmd_simulate(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaximpact", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
-    sim = sub.add_parser("simulate", help="simulate impacts of a scene",
-                         description="Simulate impacts. Without SCENE: the embedded Table 1 "
-                         "scene on the paper's three impacts (1.66 m/s; 0, +40, -40 deg; "
-                         "omega0 = 1e6 deg/s).")
+    sim = sub.add_parser(
+        "simulate",
+        help="simulate impacts of a scene",
+        description="Simulate impacts. Without SCENE: the embedded Table 1 "
+        "scene on the paper's three impacts (1.66 m/s; 0, +40, -40 deg; "
+        "omega0 = 1e6 deg/s).",
+    )
     sim.add_argument("scene", nargs="?", help="scene file (TOML); default: embedded Table 1")
-    sim.add_argument("--impacts", help="impacts CSV (speed, angle_deg[, omega0][, parameter "
-                     "columns overriding the scene per row]); default: the scene's [impact]")
+    sim.add_argument(
+        "--impacts",
+        help="impacts CSV (speed, angle_deg[, omega0][, parameter "
+        "columns overriding the scene per row]); default: the scene's [impact]",
+    )
     sim.add_argument("-o", "--output", help="write the results CSV here (atomically)")
     sim.add_argument("--precision", choices=("float64", "float32"), default="float64")
     sim.set_defaults(func=cmd_simulate)

@@ -23,8 +23,7 @@ def elastic_scene(radius=1e-3, density=2500.0, K=5e10, friction=0.0, **model):
 
 
 def hertz_scales(scene, v_n):
-    r, rho, K = (float(x) for x in (scene.particle.radius, scene.particle.density,
-                                     scene.contact.K))
+    r, rho, K = (float(x) for x in (scene.particle.radius, scene.particle.density, scene.contact.K))
     m = rho * 4 / 3 * math.pi * r**3
     n_star = (5 * m * v_n**2 / (4 * K * math.sqrt(r))) ** 0.4
     return m, n_star
@@ -78,13 +77,19 @@ def test_rolling_exit_limit(omega0):
 @pytest.mark.parametrize("moments", ["none", "analytical", "lambda"])
 @pytest.mark.parametrize("load", ["net", "hertz"])
 def test_energy_ledger_closes(table1, moments, load):
-    scene = table1.replace(model={"rolling_moments": moments, "friction_load": load,
-                                  "lambda_": 1e-5})
-    res = ji.simulate(scene, jnp.array([0.3, 1.66, 5.0, 1.66]), jnp.array([0.0, 40, -40, 75]),
-                      jnp.array([1e4, 1e4, 1e4, -3e3]))
+    scene = table1.replace(
+        model={"rolling_moments": moments, "friction_load": load, "lambda_": 1e-5}
+    )
+    res = ji.simulate(
+        scene,
+        jnp.array([0.3, 1.66, 5.0, 1.66]),
+        jnp.array([0.0, 40, -40, 75]),
+        jnp.array([1e4, 1e4, 1e4, -3e3]),
+    )
     assert np.all(np.asarray(res.status) == Status.REBOUND)
-    losses = (res.loss_hertz_damping + res.loss_adhesion_damping + res.loss_friction
-              + res.loss_rolling)
+    losses = (
+        res.loss_hertz_damping + res.loss_adhesion_damping + res.loss_friction + res.loss_rolling
+    )
     # Closes to 1e-6 of the energy brought in (float64, default tolerances).
     residual = np.abs(res.energy_in - res.energy_out - losses) / res.energy_in
     assert np.all(residual < 1e-6)
@@ -111,11 +116,13 @@ def test_paper_figure3_small_lambda_changes_little(table1):
     angles = jnp.array([0.0, 40.0, -40.0])
     none = ji.simulate(table1.replace(model={"rolling_moments": "none"}), 1.66, angles, w0)
     for lam, tol in ((1e-10, 1e-4), (1e-8, 1e-2), (1e-7, 5e-2)):
-        res = ji.simulate(table1.replace(model={"rolling_moments": "lambda", "lambda_": lam}),
-                          1.66, angles, w0)
+        res = ji.simulate(
+            table1.replace(model={"rolling_moments": "lambda", "lambda_": lam}), 1.66, angles, w0
+        )
         np.testing.assert_allclose(res.omega_out, none.omega_out, rtol=tol)
-    big = ji.simulate(table1.replace(model={"rolling_moments": "lambda", "lambda_": 1e-4}),
-                      1.66, angles, w0)
+    big = ji.simulate(
+        table1.replace(model={"rolling_moments": "lambda", "lambda_": 1e-4}), 1.66, angles, w0
+    )
     # Fig. 5: a large lambda stops the spin during the contact.
     assert np.all(np.abs(big.omega_out) < 0.05 * w0)
 
@@ -190,8 +197,9 @@ def test_float32_close_to_float64(table1):
         res = ji.simulate(scene32, speeds, angles, 1e4)
         assert res.cor_n.dtype == jnp.float32
     np.testing.assert_allclose(res.cor_n, ref.cor_n, atol=1e-3)
-    np.testing.assert_allclose(np.asarray(res.vt_out) / speeds, np.asarray(ref.vt_out) / speeds,
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        np.asarray(res.vt_out) / speeds, np.asarray(ref.vt_out) / speeds, atol=1e-3
+    )
 
 
 # Finite differences of an adaptive solve are only as good as its tolerance: compare at 1e-11.
@@ -240,9 +248,14 @@ def test_works_under_jit_and_vmap(table1):
 
 @pytest.mark.parametrize(
     "kwargs, field",
-    [({"speed": -1.0}, "speed"), ({"speed": 0.0}, "speed"), ({"angle_deg": 90.0}, "angle_deg"),
-     ({"angle_deg": -95.0}, "angle_deg"), ({"omega0": float("nan")}, "omega0"),
-     ({"speed": float("inf")}, "speed")],
+    [
+        ({"speed": -1.0}, "speed"),
+        ({"speed": 0.0}, "speed"),
+        ({"angle_deg": 90.0}, "angle_deg"),
+        ({"angle_deg": -95.0}, "angle_deg"),
+        ({"omega0": float("nan")}, "omega0"),
+        ({"speed": float("inf")}, "speed"),
+    ],
 )
 def test_bad_impact_inputs(table1, kwargs, field):
     args = {"speed": 1.0, "angle_deg": 0.0, "omega0": 0.0, **kwargs}
@@ -252,14 +265,19 @@ def test_bad_impact_inputs(table1, kwargs, field):
 
 @pytest.mark.parametrize(
     "section, values, field",
-    [("particle", {"radius": 0.0}, "particle.radius"),
-     ("particle", {"density": -1.0}, "particle.density"),
-     ("contact", {"K": -5.0}, "contact.K"), ("contact", {"f0": -1.0}, "contact.f0"),
-     ("contact", {"C_A": -1.0}, "contact.C_A"), ("contact", {"C_H": float("nan")}, "contact.C_H"),
-     ("contact", {"friction": -0.1}, "contact.friction"),
-     ("model", {"lambda_": -1.0}, "model.lambda"),
-     ("model", {"rolling_moments": "bogus"}, "model.rolling_moments"),
-     ("solver", {"rtol": 2.0}, "solver.rtol"), ("solver", {"method": "euler"}, "solver.method")],
+    [
+        ("particle", {"radius": 0.0}, "particle.radius"),
+        ("particle", {"density": -1.0}, "particle.density"),
+        ("contact", {"K": -5.0}, "contact.K"),
+        ("contact", {"f0": -1.0}, "contact.f0"),
+        ("contact", {"C_A": -1.0}, "contact.C_A"),
+        ("contact", {"C_H": float("nan")}, "contact.C_H"),
+        ("contact", {"friction": -0.1}, "contact.friction"),
+        ("model", {"lambda_": -1.0}, "model.lambda"),
+        ("model", {"rolling_moments": "bogus"}, "model.rolling_moments"),
+        ("solver", {"rtol": 2.0}, "solver.rtol"),
+        ("solver", {"method": "euler"}, "solver.method"),
+    ],
 )
 def test_bad_scene_values(table1, section, values, field):
     with pytest.raises(ji.SceneError, match=field.replace(".", r"\.")):
