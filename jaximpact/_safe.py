@@ -32,5 +32,5 @@ def smooth_sign_flat(z):
 
 
 def smooth_step_flat(z):
-    """Even companion of :func:`smooth_sign_flat`: ``tanh(z**2)``, 0 at ``z = 0``, 1 for large ``|z|``."""
+    """Even companion of :func:`smooth_sign_flat`: ``tanh(z**2)``, 0 at 0, 1 for large ``|z|``."""
     return jnp.tanh(z * z)
