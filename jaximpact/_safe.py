@@ -16,7 +16,14 @@ def safe_sqrt(x):
 
 
 def safe_pow(x, p):
-    """``max(x, 0) ** p`` for ``p > 0`` with derivatives that are 0 for ``x <= 0``."""
+    """``max(x, 0) ** p`` for ``p > 0`` with derivatives that are 0 for ``x <= 0``.
+
+    Half-integer powers (the Hertz laws' 0.5, 1.5, 2.5) are computed as ``x^k sqrt(x)``: one
+    shared square root instead of an ``exp(p log x)`` per law, a large saving in the ODE.
+    """
+    k = p - 0.5
+    if float(k).is_integer() and k >= 0:
+        return safe_sqrt(x) * jnp.maximum(x, 0.0) ** int(k)
     positive = x > 0
     return jnp.where(positive, jnp.where(positive, x, 1.0) ** p, 0.0)
 

@@ -110,9 +110,14 @@ def _scaled(params, speed, angle_deg, omega0):
     return p, units
 
 
+# Only the motion and the peak overlap drive the step size: the ledger integrals follow it
+# (their kinks, e.g. max(ndot, 0) at the turning point, would only cost rejected steps), and
+# slide_time (a latch that jumps once, when rolling starts) must not drive it at all.
+CONTROLLED_STATES = ("n", "ndot", "vt", "w", "peak")
+
+
 def _error_norm(error):
-    # slide_time only records when rolling starts; its one jump must not drive the step size.
-    return optx.rms_norm({k: v for k, v in error.items() if k != "slide_time"})
+    return optx.rms_norm({k: v for k, v in error.items() if k in CONTROLLED_STATES})
 
 
 def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0):

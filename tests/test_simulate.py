@@ -221,7 +221,8 @@ def test_gradients_match_finite_differences(table1):
         h = 1e-3 * float(x[i])
         e = jnp.zeros(3).at[i].set(h)
         fd = (cor(x + e) - cor(x - e)) / (2 * h)
-        assert float(g[i]) == pytest.approx(float(fd), rel=2e-3, abs=1e-6)
+        # abs: the finite difference's own noise, ~(solver error 1e-9) / (2h)
+        assert float(g[i]) == pytest.approx(float(fd), rel=2e-3, abs=5e-6)
 
 
 def test_gradient_wrt_impact_inputs(table1):
