@@ -1,0 +1,788 @@
+"""Large sweeps: millions of impacts in fixed-size chunks, streamed to Parquet, resumable, sharded.
+
+``jaximpact sweep`` (and :func:`run_sweep`) simulates an impacts table (CSV or Parquet) or a
+cartesian grid of impact inputs and scene parameters, ``chunk_size`` impacts at a time:
+
+* **One compilation.** Every chunk has the same size (the last one is padded by repeating its
+  final row; padded rows are dropped on output) and the model terms and solver are chosen once
+  for the whole sweep, from all its values, exactly as :func:`jaximpact.simulate` would choose
+  them for the whole batch. A sweep therefore gives the same numbers as ``simulate`` on the same
+  impacts, up to rounding (which XLA's vectorization may make depend on the batch size, and
+  which an adaptive step decision can amplify to the solver tolerance in rare rows).
+* **Streamed output.** The output path is a directory (a Parquet dataset)::
+
+      RESULTS.parquet/
+          part-000000.parquet     # chunk 0: rows 0 .. chunk_size-1
+          part-000001.parquet
+          ...
+          manifest-00000.json     # process 0: settings hash and the chunks it completed
+          manifest-00001.json     # (one manifest per process with --distributed)
+
+  Each part file has the results-CSV columns: the input columns, then
+  :data:`jaximpact.tables.RESULT_COLUMNS` (``status`` as a string, NaN for "not applicable").
+  :func:`read_sweep` (``pyarrow.Table``) and :func:`read_sweep_columns` (``{name: numpy array}``)
+  assemble the rows in order; ``pyarrow.dataset`` or any Parquet reader can read the part files.
+* **Resumable.** A part file and then the manifest are written atomically (temporary file,
+  fsync, ``os.replace``). A chunk counts as done only once a manifest lists it, so after a kill
+  at any point the same command continues with the first chunk not listed: listed chunks are
+  never recomputed nor rewritten, and a part file written but not yet listed is simply written
+  again (same content). The manifest records a hash of the settings (scene file, impacts file or
+  grid, chunk size, precision, jaximpact version); a sweep refuses to continue into a directory
+  made with other settings unless ``restart=True`` (``--restart``), which deletes the old parts.
+* **Sharded.** Each chunk is split across all local JAX devices: a ``jit`` with the inputs
+  sharded along the batch over a 1-D mesh (``NamedSharding(mesh, P("batch"))``), so each device
+  integrates its slice; they exchange only one boolean per solver step (see ``_runner``). The
+  chunk size
+  must be a multiple of the local device count. Across hosts (``jax.distributed``), process
+  ``p`` of ``P`` takes the chunks ``i`` with ``i % P == p`` and writes its own part files and
+  its own manifest (``manifest-<p>.json``), so processes never write the same file; readers
+  merge the manifests.
+* **Bounded memory.** Results are never accumulated: at most two chunks (the one computing, the
+  one being written) are held. Inputs from a file are held as float64 columns (8 bytes per value;
+  results take 16 columns); a grid is generated chunk by chunk.
+
+Grid syntax (one ``--grid`` per axis, cartesian product, the last axis varying fastest)::
+
+    NAME=VALUE                 one value            omega0=0
+    NAME=V1,V2,...             a list               angle_deg=-40,0,40
+    NAME=START:STOP:NUM        NUM values, linear   angle_deg=-60:60:25   (both ends included)
+    NAME=START:STOP:NUM:log    NUM values, geometric speed=0.1:5:50:log
+
+``NAME`` is ``speed``, ``angle_deg``, ``omega0`` or a scene parameter (``radius, density, K, f0,
+C_A, C_H, friction, lambda``). ``speed``, ``angle_deg`` and ``omega0`` not given come from the
+scene's ``[impact]``. Output input-columns: ``speed, angle_deg, omega0``, then the parameter
+axes in the order given.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import re
+import secrets
+import signal
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .tables import (
+    IMPACT_COLUMNS,
+    IMPACT_PARAMETER_COLUMNS,
+    RESULT_COLUMNS,
+    ImpactTable,
+    TableError,
+    atomic_write_text,
+    check_impact_value,
+    read_impacts,
+)
+
+__all__ = [
+    "DEFAULT_CHUNK_SIZE",
+    "GridSource",
+    "SweepError",
+    "SweepSummary",
+    "TableSource",
+    "parse_grid",
+    "read_impacts_file",
+    "read_sweep",
+    "read_sweep_columns",
+    "iter_chunks",
+    "run_sweep",
+]
+
+FORMAT = "jaximpact-sweep/1"
+DEFAULT_CHUNK_SIZE = 8192
+GRID_NAMES = IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS
+_PART = re.compile(r"^part-(\d{6,})\.parquet$")
+_MANIFEST = re.compile(r"^manifest-(\d{5,})\.json$")
+# Test hook only: after this many chunks are committed in one run, write the next part file and
+# then SIGKILL the process before its manifest entry is written (the most delicate moment).
+_KILL_ENV = "JAXIMPACT_SWEEP_KILL_AFTER"
+
+
+class SweepError(ValueError):
+    """Bad sweep settings: grid syntax, chunk size, or an output made with other settings."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Impact sources
+
+
+class TableSource:
+    """Impacts from a table held in memory (an impacts CSV or Parquet file).
+
+    Arguments:
+        table: the validated :class:`~jaximpact.tables.ImpactTable`.
+        fingerprint: what identifies the input for the settings hash (e.g. the file's sha256).
+    """
+
+    def __init__(self, table: ImpactTable, fingerprint: dict):
+        self.table = table
+        self.columns = tuple(table.columns)
+        self.n = len(table)
+        self.fingerprint = fingerprint
+        self._all = {"speed": table.speed, "angle_deg": table.angle_deg, "omega0": table.omega0}
+        self._all.update(table.overrides)
+
+    def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        """Rows ``start:stop``: every impact input present (``omega0`` always), float64."""
+        return {k: v[start:stop] for k, v in self._all.items()}
+
+    def value_sets(self) -> dict[str, np.ndarray]:
+        """All values each input takes (for the model-term and solver choice)."""
+        return dict(self._all)
+
+
+class GridSource:
+    """Impacts on a cartesian grid, generated chunk by chunk (never held in full).
+
+    Arguments:
+        axes: ``{name: 1-D float64 values}`` in product order (the last varies fastest).
+        impact_defaults: ``speed``, ``angle_deg``, ``omega0`` used where no axis is given.
+
+    Raises:
+        SweepError: an unknown name, an empty axis, or a value out of range.
+    """
+
+    def __init__(self, axes: dict[str, np.ndarray], impact_defaults: dict[str, float]):
+        if not axes:
+            raise SweepError("the grid has no axes")
+        for name, values in axes.items():
+            if name not in GRID_NAMES:
+                raise SweepError(f"grid: unknown name {name!r}; allowed: {', '.join(GRID_NAMES)}")
+            for v in np.asarray(values, float).tolist():
+                try:
+                    check_impact_value(name, v)
+                except TableError as err:
+                    raise SweepError(f"grid {name}: {err}") from None
+        self.axes = {k: np.asarray(v, np.float64) for k, v in axes.items()}
+        self.defaults = {k: float(impact_defaults[k]) for k in IMPACT_COLUMNS}
+        self.shape = tuple(v.size for v in self.axes.values())
+        self.n = math.prod(self.shape)
+        self.columns = IMPACT_COLUMNS + tuple(k for k in self.axes if k not in IMPACT_COLUMNS)
+        self.fingerprint = {
+            "grid": [[k, [repr(float(x)) for x in v]] for k, v in self.axes.items()],
+            "defaults": {k: repr(v) for k, v in self.defaults.items()},
+        }
+
+    def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        """Rows ``start:stop`` of the product, float64."""
+        index = np.unravel_index(np.arange(start, stop), self.shape)
+        out = {k: np.full(stop - start, v) for k, v in self.defaults.items()}
+        for (name, values), idx in zip(self.axes.items(), index, strict=True):
+            out[name] = values[idx]
+        return out
+
+    def value_sets(self) -> dict[str, np.ndarray]:
+        """The values each input takes (axis values; defaults as one value)."""
+        out = {k: np.array([v]) for k, v in self.defaults.items()}
+        out.update(self.axes)
+        return out
+
+
+def parse_grid(specs: Sequence[str]) -> dict[str, np.ndarray]:
+    """Parse ``--grid`` specifications (see the module docstring for the syntax).
+
+    Arguments:
+        specs: strings like ``"speed=0.1:5:50:log"``, ``"angle_deg=-40,0,40"``, ``"f0=325"``.
+
+    Returns:
+        dict: ``{name: float64 values}`` in the order given.
+
+    Raises:
+        SweepError: bad syntax, an unknown or repeated name, a non-finite number, ``NUM < 1``,
+            or a log range that does not have both ends > 0.
+    """
+    axes: dict[str, np.ndarray] = {}
+    for spec in specs:
+        name, sep, body = spec.partition("=")
+        name, body = name.strip(), body.strip()
+        hint = (
+            f"grid {spec!r}: expected NAME=VALUE, NAME=V1,V2,..., NAME=START:STOP:NUM "
+            "or NAME=START:STOP:NUM:log"
+        )
+        if not sep or not name or not body:
+            raise SweepError(hint)
+        if name not in GRID_NAMES:
+            raise SweepError(
+                f"grid {spec!r}: unknown name {name!r}; allowed: {', '.join(GRID_NAMES)}"
+            )
+        if name in axes:
+            raise SweepError(f"grid {spec!r}: {name} given twice")
+
+        number = lambda text, hint=hint: _grid_number(text, hint)  # noqa: E731
+
+        if ":" in body:
+            parts = body.split(":")
+            log = len(parts) == 4 and parts[3].strip() == "log"
+            if len(parts) not in (3, 4) or (len(parts) == 4 and not log):
+                raise SweepError(hint)
+            start, stop = number(parts[0]), number(parts[1])
+            try:
+                num = int(parts[2])
+            except ValueError:
+                raise SweepError(f"{hint}; NUM {parts[2].strip()!r} is not an integer") from None
+            if num < 1:
+                raise SweepError(f"grid {spec!r}: NUM must be >= 1")
+            if log:
+                if start <= 0 or stop <= 0:
+                    raise SweepError(f"grid {spec!r}: a log range needs START > 0 and STOP > 0")
+                values = np.geomspace(start, stop, num)
+            else:
+                values = np.linspace(start, stop, num)
+        else:
+            values = np.array([number(t) for t in body.split(",")])
+        axes[name] = values
+    return axes
+
+
+def _grid_number(text: str, hint: str) -> float:
+    """One finite number of a grid specification."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise SweepError(f"{hint}; {text.strip()!r} is not a number") from None
+    if not math.isfinite(value):
+        raise SweepError(f"{hint}; {text.strip()!r} is not finite")
+    return value
+
+
+def read_impacts_file(path) -> TableSource:
+    """Read an impacts table from CSV (``.csv``) or Parquet (any other suffix).
+
+    The Parquet file has the columns of the impacts CSV (numbers, no nulls).
+
+    Raises:
+        TableError: as :func:`jaximpact.tables.read_impacts`: missing, unknown or invalid
+            columns and values, named by file and column (and line for CSV).
+        OSError: the file cannot be read.
+    """
+    path = Path(path)
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    fingerprint = {"impacts_sha256": digest.hexdigest()}
+    if path.suffix.lower() == ".csv":
+        return TableSource(read_impacts(path), fingerprint)
+    import pyarrow.parquet as pq
+
+    try:
+        data = pq.read_table(path)
+    except Exception as err:  # pyarrow raises its own types for a corrupt or non-Parquet file
+        raise TableError(f"{path}: not a readable Parquet file ({err})", path=path) from None
+    allowed = IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS
+    for name in data.column_names:
+        if name not in allowed:
+            raise TableError(
+                f"{path}, column '{name}': unknown column; allowed columns: {', '.join(allowed)}",
+                path=path,
+                column=name,
+            )
+    for name in ("speed", "angle_deg"):
+        if name not in data.column_names:
+            raise TableError(f"{path}, column '{name}': required column missing", path=path)
+    values = {}
+    for name in data.column_names:
+        column = data.column(name)
+        if column.null_count:
+            raise TableError(f"{path}, column '{name}': null values", path=path, column=name)
+        try:
+            values[name] = np.asarray(column.to_numpy(), dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TableError(f"{path}, column '{name}': not numbers", path=path) from None
+    table = ImpactTable(
+        speed=values["speed"],
+        angle_deg=values["angle_deg"],
+        omega0=values.get("omega0"),
+        overrides={k: v for k, v in values.items() if k in IMPACT_PARAMETER_COLUMNS},
+        columns=tuple(data.column_names),
+        source=str(path),
+    )
+    return TableSource(table, fingerprint)
+
+
+# ---------------------------------------------------------------------------------------------
+# Output directory: part files and manifests
+
+
+def _part_name(chunk: int) -> str:
+    return f"part-{chunk:06d}.parquet"
+
+
+def _manifest_name(process: int) -> str:
+    return f"manifest-{process:05d}.json"
+
+
+def _fsync_dir(path: Path) -> None:
+    # Persist renames; best effort, since not every platform can fsync a directory.
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    with contextlib.suppress(OSError):
+        os.fsync(fd)
+    os.close(fd)
+
+
+def _atomic_write_table(path: Path, table) -> None:
+    """Write a Parquet file so that readers see either nothing/the old file or the whole file."""
+    import pyarrow.parquet as pq
+
+    temp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        pq.write_table(table, temp)
+        with open(temp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(temp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temp)
+        raise
+    _fsync_dir(path.parent)
+
+
+def _load_manifests(directory: Path) -> dict[int, dict]:
+    """``{process index: manifest}`` of every manifest in the directory."""
+    out = {}
+    if not directory.is_dir():
+        return out
+    for entry in sorted(directory.iterdir()):
+        match = _MANIFEST.match(entry.name)
+        if not match:
+            continue
+        try:
+            manifest = json.loads(entry.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as err:
+            # Written atomically, so this is damage from outside the sweep: say so, do not guess.
+            raise SweepError(f"{entry}: unreadable sweep manifest ({err})") from None
+        if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+            raise SweepError(f"{entry}: not a {FORMAT} manifest")
+        out[int(match.group(1))] = manifest
+    return out
+
+
+def _clear(directory: Path, keep=lambda name: False) -> None:
+    """Delete this module's files (parts, manifests, temporaries) unless ``keep(name)``."""
+    for entry in directory.iterdir():
+        name = entry.name
+        ours = (
+            _PART.match(name)
+            or _MANIFEST.match(name)
+            or (name.startswith((".part-", ".manifest-")) and name.endswith(".tmp"))
+        )
+        if ours and not keep(name):
+            with contextlib.suppress(FileNotFoundError):
+                entry.unlink()
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+
+
+def _merged(path) -> tuple[dict, list[int]]:
+    directory = Path(path)
+    manifests = _load_manifests(directory)
+    if not manifests:
+        raise SweepError(f"{directory}: no sweep manifest (not a sweep output, or nothing done)")
+    hashes = {m["settings_hash"] for m in manifests.values()}
+    if len(hashes) != 1:
+        raise SweepError(f"{directory}: manifests from different settings: {sorted(hashes)}")
+    settings = next(iter(manifests.values()))["settings"]
+    done = sorted({int(c) for m in manifests.values() for c in m["completed"]})
+    return {**settings, "settings_hash": hashes.pop()}, done
+
+
+def read_sweep(path, *, allow_partial: bool = False):
+    """Read a sweep output directory into one ``pyarrow.Table``, rows in impact order.
+
+    Arguments:
+        path: the directory written by :func:`run_sweep` / ``jaximpact sweep``.
+        allow_partial: return the completed chunks of an unfinished sweep (rows of missing
+            chunks are absent) instead of raising.
+
+    Returns:
+        pyarrow.Table: the input columns, then :data:`~jaximpact.tables.RESULT_COLUMNS`.
+
+    Raises:
+        SweepError: not a sweep directory, manifests that disagree, a listed part file missing
+            or from other settings, or (unless ``allow_partial``) chunks not yet done.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    settings, done = _merged(path)
+    missing = sorted(set(range(settings["n_chunks"])) - set(done))
+    if missing and not allow_partial:
+        raise SweepError(
+            f"{path}: sweep incomplete: {len(missing)} of {settings['n_chunks']} chunks not done "
+            f"(first: {missing[0]}); run the same command again to finish it"
+        )
+    tables = []
+    for chunk in done:
+        file = Path(path) / _part_name(chunk)
+        try:
+            table = pq.read_table(file)
+        except (OSError, pa.ArrowException) as err:
+            raise SweepError(f"{file}: listed as done but unreadable ({err})") from None
+        meta = table.schema.metadata or {}
+        if meta.get(b"jaximpact.settings_hash", b"").decode() != settings["settings_hash"]:
+            raise SweepError(f"{file}: written with other settings than the manifest")
+        tables.append(table.replace_schema_metadata(None))
+    if not tables:
+        return _empty_table(settings["columns"])
+    return pa.concat_tables(tables)
+
+
+def _empty_table(input_columns):
+    import pyarrow as pa
+
+    fields = [pa.field(n, pa.float64()) for n in input_columns]
+    fields += [pa.field(n, pa.string() if n == "status" else pa.float64()) for n in RESULT_COLUMNS]
+    return pa.schema(fields).empty_table()
+
+
+def read_sweep_columns(path, *, allow_partial: bool = False) -> dict[str, np.ndarray]:
+    """Read a sweep output as ``{column: numpy array}`` (like ``tables.read_results``).
+
+    Numeric columns are float64 (NaN for "not applicable"), ``status`` an array of str.
+    Arguments and exceptions as :func:`read_sweep`.
+    """
+    table = read_sweep(path, allow_partial=allow_partial)
+    out = {}
+    for name in table.column_names:
+        column = table.column(name)
+        if name == "status":
+            out[name] = np.array(column.to_pylist(), dtype=str)
+        else:
+            out[name] = np.asarray(column.to_numpy(), dtype=np.float64)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Running
+
+
+@dataclass(frozen=True)
+class SweepSummary:
+    """What one :func:`run_sweep` call did (for this process).
+
+    Attributes:
+        output: the output directory.
+        n_impacts, n_chunks, chunk_size: the whole sweep.
+        chunks_run: chunks computed by this call; ``chunks_skipped``: this process's chunks
+            already done before it started.
+        impacts_run: impacts (without padding) computed by this call.
+        failed: impacts with status ``failed`` among those computed by this call.
+        seconds: wall time of the call; ``devices``: local devices used.
+        complete: every chunk of the sweep is listed in the manifests as seen at the end.
+    """
+
+    output: str
+    n_impacts: int
+    n_chunks: int
+    chunk_size: int
+    chunks_run: int
+    chunks_skipped: int
+    impacts_run: int
+    failed: int
+    seconds: float
+    devices: int
+    complete: bool
+
+
+_RUNNERS: dict = {}
+
+
+def _runner(terms, cfg, devices):
+    """The jitted, sharded batch function for this model/solver and these devices (cached).
+
+    A ``jit`` of the simulator's batch function with its inputs and outputs sharded along the
+    batch over a 1-D mesh of the local devices: XLA's SPMD partitioner gives each device its
+    slice of the chunk. The compiled program exchanges no data between devices, only one
+    boolean per solver step (the batched while-loop's "any impact still running", an
+    all-reduce), so the devices step in lockstep as a single-device ``vmap`` does for its whole
+    batch. (``jax.shard_map``, which would let each device stop on its own, does not work here:
+    under it lineax, used by the event root finder, rejects the manual-mesh shardings of its
+    own traced values - "pytree does not match out_structure" - with jax 0.10.)
+    """
+    import jax
+    from jax.sharding import Mesh, NamedSharding
+    from jax.sharding import PartitionSpec as P
+
+    from ._simulate import _simulate_flat
+
+    key = (terms, cfg, tuple(d.id for d in devices))
+    if key not in _RUNNERS:
+        sharding = NamedSharding(Mesh(np.array(devices), ("batch",)), P("batch"))
+        fn = jax.jit(
+            lambda params, speed, angle_deg, omega0: _simulate_flat(
+                terms, cfg, params, speed, angle_deg, omega0
+            ),
+            in_shardings=sharding,
+            out_shardings=sharding,
+        )
+        _RUNNERS[key] = (fn, sharding)
+    return _RUNNERS[key]
+
+
+def _params(base: dict, rows: dict, size: int, dtype) -> dict:
+    """Per-impact parameter arrays: the row's override, else the scene's value."""
+    return {k: np.asarray(rows[k] if k in rows else np.full(size, base[k]), dtype) for k in base}
+
+
+def _model_config(scene, source, chunk_size: int, dtype):
+    """Model terms and solver settings for the whole sweep (static: one compilation).
+
+    The same choice :func:`jaximpact.simulate` makes for one batch holding every impact: the
+    terms from all values each input takes; with ``method = "auto"``, Kvaerno5 if the stiffness
+    estimate of any impact exceeds the limit (computed chunk by chunk to bound memory).
+    """
+    from ._simulate import _integration, required_terms, scene_parameters, stiffness_estimate
+
+    base = {k: float(v) for k, v in scene_parameters(scene).items()}
+    sets = source.value_sets()
+    params = {k: np.asarray(sets.get(k, base[k]), np.float64) for k in base}
+    terms = required_terms(scene, params, sets["angle_deg"], sets["omega0"])
+    method = scene.solver.method
+    if method == "auto":
+        stiffness = 0.0
+        for start in range(0, source.n, chunk_size):
+            rows = source.rows(start, min(start + chunk_size, source.n))
+            size = rows["speed"].size
+            prm = _params(base, rows, size, dtype)
+            estimate = stiffness_estimate(prm, rows["speed"].astype(dtype), rows["angle_deg"])
+            stiffness = max(stiffness, float(estimate))
+        method = "kvaerno5" if stiffness > scene.solver.stiffness_limit else "tsit5"
+    one = {k: np.ones(1) for k in base}
+    cfg = _integration(scene, one, np.ones(1), np.zeros(1), dtype, method)
+    return base, terms, cfg
+
+
+def _settings(scene_path, source, chunk_size: int, dtype) -> tuple[dict, str]:
+    from . import __version__, default_scene_path
+
+    scene_file = Path(default_scene_path() if scene_path is None else scene_path)
+    settings = {
+        "format": FORMAT,
+        "jaximpact": __version__,
+        "scene": "embedded Table 1" if scene_path is None else str(scene_path),
+        "scene_sha256": hashlib.sha256(scene_file.read_bytes()).hexdigest(),
+        "impacts": source.fingerprint,
+        "precision": np.dtype(dtype).name,
+        "chunk_size": chunk_size,
+        "n_impacts": source.n,
+        "n_chunks": -(-source.n // chunk_size),
+        "columns": list(source.columns),
+    }
+    # The hash covers what determines the numbers; not the scene's path (moving a file is fine).
+    hashed = {k: v for k, v in settings.items() if k != "scene"}
+    digest = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
+    return settings, digest
+
+
+def _chunk_table(inputs: dict, columns, results: dict, settings_hash: str):
+    import pyarrow as pa
+
+    arrays = [pa.array(np.asarray(inputs[k], np.float64)) for k in columns]
+    arrays.append(pa.array(np.asarray(results["status"]).astype(str).tolist(), pa.string()))
+    arrays += [pa.array(np.asarray(results[k], np.float64)) for k in RESULT_COLUMNS[1:]]
+    table = pa.Table.from_arrays(arrays, names=[*columns, *RESULT_COLUMNS])
+    return table.replace_schema_metadata({"jaximpact.settings_hash": settings_hash})
+
+
+def run_sweep(
+    source: TableSource | GridSource,
+    output,
+    *,
+    scene_path=None,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+    restart: bool = False,
+    progress: bool = True,
+    process_index: int | None = None,
+    process_count: int | None = None,
+) -> SweepSummary:
+    """Run (or continue) a sweep, writing each finished chunk to ``output``.
+
+    Set the precision first (``jax.config.update("jax_enable_x64", True)`` for float64); it is
+    part of the settings.
+
+    Arguments:
+        source: the impacts (:func:`read_impacts_file`, or :class:`GridSource`).
+        output: the output directory (created if missing).
+        scene_path: the scene file; ``None``: the embedded Table 1 scene.
+        chunk_size: impacts per chunk; a multiple of the number of local JAX devices.
+        restart: delete results made with other settings (or any results) and start over.
+        progress: show a tqdm progress bar on stderr (impacts/s, ETA).
+        process_index, process_count: this process's share (chunks ``i`` with
+            ``i % process_count == process_index``); default ``jax.process_index()`` and
+            ``jax.process_count()`` (0 and 1 without ``jax.distributed``).
+
+    Returns:
+        SweepSummary: what this call computed.
+
+    Raises:
+        SweepError: chunk size not a positive multiple of the device count, bad process share,
+            ``output`` not a directory, or results there made with other settings (without
+            ``restart``).
+        SceneError: the scene file is invalid. OSError: files cannot be read or written.
+    """
+    import jax
+    import jax.numpy as jnp
+    from tqdm import tqdm
+
+    from . import load_scene
+
+    t_start = time.perf_counter()
+    devices = jax.local_devices()
+    if chunk_size < 1 or chunk_size % len(devices):
+        raise SweepError(
+            f"--chunk-size {chunk_size} must be a positive multiple of the number of local "
+            f"devices ({len(devices)}: {', '.join(str(d) for d in devices)})"
+        )
+    index = jax.process_index() if process_index is None else process_index
+    count = jax.process_count() if process_count is None else process_count
+    if not 0 <= index < count:
+        raise SweepError(f"process index {index} is not in [0, {count})")
+    dtype = jnp.result_type(float)
+    scene = load_scene(scene_path)
+    settings, digest = _settings(scene_path, source, chunk_size, dtype)
+    n_chunks = settings["n_chunks"]
+
+    directory = Path(output)
+    if directory.exists() and not directory.is_dir():
+        raise SweepError(f"{directory}: exists and is not a directory (a sweep writes a directory)")
+    directory.mkdir(parents=True, exist_ok=True)
+    mine = [c for c in range(n_chunks) if c % count == index]
+    if restart:
+        # Each process deletes only what it will rewrite, so concurrent processes of a
+        # distributed restart never delete each other's new files; process 0 also deletes what
+        # no process of this run owns (parts past the end, manifests of a larger old run).
+        own = {_part_name(c) for c in mine} | {_manifest_name(index)}
+
+        def keep(name: str) -> bool:
+            if name in own:
+                return False
+            if index != 0:
+                return True
+            part, manifest = _PART.match(name), _MANIFEST.match(name)
+            if part:
+                return int(part.group(1)) < n_chunks
+            if manifest:
+                return int(manifest.group(1)) < count
+            return True  # others' temporaries may be in flight
+
+        _clear(directory, keep)
+        manifests = {}
+    else:
+        manifests = _load_manifests(directory)
+        for p, m in manifests.items():
+            if m.get("settings_hash") != digest:
+                raise SweepError(
+                    f"{directory / _manifest_name(p)}: results made with other settings "
+                    f"(scene, impacts, chunk size {m.get('settings', {}).get('chunk_size')}, "
+                    "precision or version differ); use --restart to discard them, or another -o"
+                )
+    done = {int(c) for m in manifests.values() for c in m["completed"]}
+    own_completed = sorted(int(c) for c in manifests.get(index, {}).get("completed", []))
+    todo = [c for c in mine if c not in done]
+
+    base, terms, cfg = _model_config(scene, source, chunk_size, dtype)
+    fn, sharding = _runner(terms, cfg, devices)
+    kill_after = os.environ.get(_KILL_ENV)
+    kill_after = None if kill_after is None else int(kill_after)
+
+    def launch(chunk: int):
+        """Build chunk ``chunk``'s padded inputs and dispatch it (JAX runs it asynchronously)."""
+        start = chunk * chunk_size
+        stop = min(start + chunk_size, source.n)
+        rows = source.rows(start, stop)
+        valid = stop - start
+        # Pad by repeating the last row: a valid impact, so padding cannot fail or slow down
+        # the solver, and the shape (hence the compilation) stays the same.
+        pad = np.concatenate([np.arange(valid), np.full(chunk_size - valid, valid - 1)])
+        padded = {k: v[pad] for k, v in rows.items()}
+        prm = _params(base, padded, chunk_size, dtype)
+        args = [prm] + [np.asarray(padded[k], dtype) for k in IMPACT_COLUMNS]
+        args = jax.device_put(args, sharding)
+        return chunk, valid, rows, fn(*args)
+
+    def commit(chunk: int, valid: int, rows: dict, result) -> int:
+        columns = jax.tree_util.tree_map(lambda x: np.asarray(x)[:valid], result).columns()
+        table = _chunk_table(rows, source.columns, columns, digest)
+        _atomic_write_table(directory / _part_name(chunk), table)
+        if kill_after is not None and len(own_completed) - skipped_own >= kill_after:
+            os.kill(os.getpid(), signal.SIGKILL)  # test hook: die before the manifest update
+        own_completed.append(chunk)
+        manifest = {
+            "format": FORMAT,
+            "settings_hash": digest,
+            "settings": settings,
+            "process_index": index,
+            "process_count": count,
+            "completed": sorted(own_completed),
+        }
+        atomic_write_text(directory / _manifest_name(index), json.dumps(manifest, indent=1) + "\n")
+        return int(np.sum(columns["status"] == "failed"))
+
+    skipped_own = len(own_completed)
+    total = sum(min(chunk_size, source.n - c * chunk_size) for c in mine)
+    bar = tqdm(
+        total=total,
+        initial=total - sum(min(chunk_size, source.n - c * chunk_size) for c in todo),
+        unit="impact",
+        unit_scale=True,
+        smoothing=0.1,
+        disable=not progress,
+        desc=f"sweep {directory.name}" + (f" [process {index}/{count}]" if count > 1 else ""),
+    )
+    failed = impacts_run = 0
+    pending = None
+    try:
+        # Dispatch chunk k+1 before writing chunk k: the devices compute while Python writes.
+        for chunk in todo:
+            launched = launch(chunk)
+            if pending is not None:
+                failed += commit(*pending)
+                impacts_run += pending[1]
+                bar.update(pending[1])
+            pending = launched
+        if pending is not None:
+            failed += commit(*pending)
+            impacts_run += pending[1]
+            bar.update(pending[1])
+    finally:
+        bar.close()
+    final = _load_manifests(directory)
+    complete = {int(c) for m in final.values() for c in m["completed"]} >= set(range(n_chunks))
+    return SweepSummary(
+        output=str(directory),
+        n_impacts=source.n,
+        n_chunks=n_chunks,
+        chunk_size=chunk_size,
+        chunks_run=len(todo),
+        chunks_skipped=len(mine) - len(todo),
+        impacts_run=impacts_run,
+        failed=failed,
+        seconds=time.perf_counter() - t_start,
+        devices=len(devices),
+        complete=complete,
+    )
+
+
+def iter_chunks(path) -> Iterator:
+    """Yield the completed part files of a sweep as ``pyarrow.Table``, in chunk order.
+
+    For sweeps too large to read at once. Raises as :func:`read_sweep` (partial allowed).
+    """
+    import pyarrow.parquet as pq
+
+    _, done = _merged(path)
+    for chunk in done:
+        yield pq.read_table(Path(path) / _part_name(chunk)).replace_schema_metadata(None)
