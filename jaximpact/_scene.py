@@ -205,9 +205,11 @@ class Scene(eqx.Module):
 
     particle: Particle
     contact: Contact
-    model: Model = Model()
-    impact: Impact = Impact(speed=1.0)
-    solver: Solver = Solver()
+    # Factories, not instances: building JAX arrays at import would start the JAX backend before
+    # a user (or `jaximpact sweep --distributed`) can configure it.
+    model: Model = eqx.field(default_factory=Model)
+    impact: Impact = eqx.field(default_factory=lambda: Impact(speed=1.0))
+    solver: Solver = eqx.field(default_factory=Solver)
 
     def replace(self, **sections):
         """A copy with fields replaced: ``scene.replace(contact={"f0": 1.0}, solver={...})``."""
