@@ -10,7 +10,7 @@ import optimistix as optx
 from . import _dynamics as dyn
 from ._results import ImpactResult, Status
 from ._scene import INERTIA_FACTOR, Scene, SceneError, _is_concrete, check_impact
-from ._solvers import default_tolerances, make_controller, make_solver
+from ._solvers import default_slip_width, default_tolerances, make_controller, make_solver
 from ._units import ScaledParameters, hertz_units
 
 PARAMETERS = ("radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda")
@@ -68,7 +68,7 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         adhesion=adhesion,
         rolling_moments=moments if rotation else "none",
         friction_load=m.friction_load,
-        slip_width=s.slip_width,
+        slip_width=default_slip_width(jnp.result_type(float), s.slip_width),
         ring_width=s.ring_width,
     )
 
@@ -120,7 +120,9 @@ def _error_norm(error):
     return optx.rms_norm({k: v for k, v in error.items() if k in CONTROLLED_STATES})
 
 
-def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0):
+def _solve_one(
+    terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0, adjoint=None
+):
     """Integrate one impact in Hertz units and return its ``ImpactResult`` fields (SI)."""
     dtype = jnp.result_type(speed)
     p, u = _scaled(params, speed, angle_deg, omega0)
@@ -146,6 +148,7 @@ def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_de
         stepsize_controller=controller,
         max_steps=cfg.max_steps,
         throw=False,
+        adjoint=diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
     )
     y = jax.tree_util.tree_map(lambda x: x[-1], sol.ys)
     t_end = sol.ts[-1]
@@ -206,13 +209,19 @@ def _solve_one(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_de
 
 
 @eqx.filter_jit
-def _simulate_flat(terms, cfg, params, speed, angle_deg, omega0):
-    solve = lambda prm, s, a, w: _solve_one(terms, cfg, prm, s, a, w)  # noqa: E731
+def _simulate_flat(terms, cfg, params, speed, angle_deg, omega0, adjoint=None):
+    solve = lambda prm, s, a, w: _solve_one(terms, cfg, prm, s, a, w, adjoint)  # noqa: E731
     return jax.vmap(solve)(params, speed, angle_deg, omega0)
 
 
 def simulate(
-    scene: Scene, speed=None, angle_deg=None, omega0=None, *, method: str | None = None
+    scene: Scene,
+    speed=None,
+    angle_deg=None,
+    omega0=None,
+    *,
+    method: str | None = None,
+    adjoint: diffrax.AbstractAdjoint | None = None,
 ) -> ImpactResult:
     """Simulate impacts of the scene's sphere on its surface.
 
@@ -224,6 +233,9 @@ def simulate(
       scene's. Positive: the tangential velocity is along the positive spin's rolling sense.
     - `omega0`: initial spin (rad/s), signed so that ``v_t == r*omega`` is rolling.
     - `method`: override ``scene.solver.method``.
+    - `adjoint`: how ``diffrax`` differentiates the solve; default
+      ``RecursiveCheckpointAdjoint()`` (reverse mode, ``jax.grad``). Pass
+      ``diffrax.ForwardMode()`` for forward mode (``jax.jacfwd``, ``jax.jvp``).
 
     Scalars or arrays (broadcast together; batched internally with ``vmap``).
 
@@ -251,7 +263,7 @@ def simulate(
 
     terms = required_terms(scene, params, angle_deg, omega0)
     cfg = _integration(scene, params, speed, angle_deg, dtype, method)
-    result = _simulate_flat(terms, cfg, params, speed, angle_deg, omega0)
+    result = _simulate_flat(terms, cfg, params, speed, angle_deg, omega0, adjoint)
     return jax.tree_util.tree_map(lambda x: x.reshape(shape), result)
 
 
@@ -263,7 +275,7 @@ def _integration(scene, params, speed, angle_deg, dtype, method) -> Integration:
         method = "tsit5"
         # A slip width below the solver's noise (~rtol) lets the slip wander into the steep part
         # of the friction switch, which an explicit solver crosses only with tiny steps.
-        if s.slip_width < 30 * rtol:
+        if default_slip_width(dtype, s.slip_width) < 30 * rtol:
             method = "kvaerno5"
         elif _all(list(params.values()) + [speed, angle_deg], lambda v: True):
             if float(stiffness_estimate(params, speed, angle_deg)) > s.stiffness_limit:

@@ -40,6 +40,13 @@ def default_tolerances(dtype, rtol, atol):
     return (rtol or 1e-5), (atol or 1e-7)
 
 
+def default_slip_width(dtype, slip_width):
+    """Slip-sign regularization width: 1e-3 (float64) or 3e-3 (float32) unless given."""
+    if slip_width is not None:
+        return slip_width
+    return 1e-3 if jnp.finfo(dtype).bits >= 64 else 3e-3
+
+
 def make_solver(method: str, dtype):
     """The diffrax solver for ``method`` (``auto`` must be resolved before)."""
     if method in EXPLICIT:
