@@ -1,0 +1,182 @@
+"""Shared pieces of the benchmarks: held-out impacts, error measures, timing, machine facts."""
+
+import datetime
+import os
+import platform
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+FIGURES = ROOT / "benchmarks" / "figures"
+ERROR_KEYS = ("cor_n", "vt", "omega", "contact_time")
+
+
+def held_out(n, seed=1, speeds=(0.1, 10.0)):
+    """Held-out impacts: log-uniform speeds, angles -70..70 deg, |omega0| <= 3e4 rad/s.
+
+    The first tenth is normal (angle 0), the first twentieth also without spin.
+    """
+    rng = np.random.default_rng(seed)
+    speed = 10 ** rng.uniform(np.log10(speeds[0]), np.log10(speeds[1]), n)
+    angle = rng.uniform(-70.0, 70.0, n)
+    omega0 = rng.uniform(-3e4, 3e4, n)
+    angle[: max(n // 10, 1)] = 0.0
+    omega0[: max(n // 20, 1)] = 0.0
+    return speed, angle, omega0
+
+
+def reference_rows(params, speed, angle, omega0, **options):
+    """Exact switched reference (float64, rtol 1e-12) for each impact, as a dict of arrays."""
+    from jaximpact import reference as ref
+
+    rows = [
+        ref.simulate_impact(params, float(s), float(a), float(w), **options)
+        for s, a, w in zip(speed, angle, omega0, strict=True)
+    ]
+    out = {k: np.array([getattr(r, k) for r in rows], float) for k in FIELDS[1:] if k != "cor_n"}
+    out["cor_n"] = out["vn_out"] / (np.asarray(speed) * np.cos(np.radians(angle)))
+    out["status"] = np.array([r.status for r in rows])
+    return out
+
+
+FIELDS = (
+    "status",
+    "vn_out",
+    "cor_n",
+    "vt_out",
+    "omega_out",
+    "contact_time",
+    "loss_hertz_damping",
+    "loss_adhesion_damping",
+    "loss_friction",
+    "loss_rolling",
+)
+
+
+def as_dict(res):
+    """A ``simulate`` result as a dict of numpy arrays, status as names (rebound/captured/...)."""
+    from jaximpact import Status
+
+    out = {k: np.atleast_1d(np.asarray(getattr(res, k), float)) for k in FIELDS[1:]}
+    out["status"] = np.array([Status.NAMES[int(c)] for c in np.atleast_1d(res.status)])
+    return out
+
+
+def output_errors(res, exact, speed, radius):
+    """Per-impact errors of ``res`` against ``exact`` (dicts from :func:`as_dict` or
+    :func:`reference_rows`), scaled as in the simulator issue: ``|d cor_n|``,
+    ``|d vt_out|/speed``, ``|d omega_out| r/speed`` (impacts both call rebounds) and the relative
+    contact time (impacts with equal status). NaN where not applicable. Also returns the number
+    of status mismatches."""
+    speed = np.asarray(speed, float)
+    same = res["status"] == exact["status"]
+    rebound = same & (exact["status"] == "rebound")
+    err = {
+        "cor_n": np.abs(res["cor_n"] - exact["cor_n"]),
+        "vt": np.abs(res["vt_out"] - exact["vt_out"]) / speed,
+        "omega": np.abs(res["omega_out"] - exact["omega_out"]) * radius / speed,
+        "contact_time": np.abs(res["contact_time"] / exact["contact_time"] - 1.0),
+    }
+    for k in ("cor_n", "vt", "omega"):
+        err[k] = np.where(rebound, err[k], np.nan)
+    err["contact_time"] = np.where(same, err["contact_time"], np.nan)
+    return err, int(np.sum(~same))
+
+
+def max_error(err, keys=ERROR_KEYS):
+    vals = [np.nanmax(err[k]) if np.any(np.isfinite(err[k])) else 0.0 for k in keys]
+    return float(max(vals))
+
+
+def median_time(fn, repeats=3):
+    """Median wall time of ``fn()`` (which must block until its result is ready)."""
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def machine():
+    """CPU model, core count, memory, versions."""
+    import diffrax
+    import jax
+    import scipy
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = ""
+    try:
+        kb = int(Path("/proc/meminfo").read_text().split()[1])
+        mem = f"{kb / 2**20:.0f} GiB"
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+        ).stdout.strip()
+    except OSError:
+        commit = "?"
+    return {
+        "date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "memory": mem,
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "diffrax": diffrax.__version__,
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "commit": commit,
+        "load": " ".join(f"{x:.1f}" for x in os.getloadavg()),
+    }
+
+
+def write_atomic(path: Path, data: bytes | str):
+    """Write via a temporary file in the same folder and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_figure(fig, name):
+    """Save a matplotlib figure as ``benchmarks/figures/NAME.png`` (atomically, < 300 KB)."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    write_atomic(FIGURES / f"{name}.png", buf.getvalue())
+    return f"benchmarks/figures/{name}.png"
+
+
+def table(header, rows):
+    """A Markdown table."""
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(out)
+
+
+def fmt(x, spec=".1e"):
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return "–"
+    return format(x, spec)
