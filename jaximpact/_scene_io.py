@@ -36,6 +36,7 @@ ALLOWED = {
     "model": {"rotation", "adhesion", "rolling_moments", "lambda", "friction_load"},
     "impact": {"speed", "angle_deg", "omega0"},
     "solver": {
+        "outputs",
         "method",
         "rtol",
         "atol",

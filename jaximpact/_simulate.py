@@ -70,6 +70,7 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         friction_load=m.friction_load,
         slip_width=default_slip_width(jnp.result_type(float), s.slip_width),
         ring_width=s.ring_width,
+        ledger=s.outputs == "full",
     )
 
 
@@ -180,7 +181,9 @@ def _solve_one(
     vn_out = jnp.where(rebound, -y["ndot"], 0.0) * u.speed
     vt_out = vt * u.speed
     omega_out = w / u.time
-    if terms.tangential:
+    if not terms.ledger:
+        roll_time = nan
+    elif terms.tangential:
         never_rolled = y["slide_time"] >= t_end * (1 - 1e-4) - 1e-6
         roll_time = jnp.where(never_rolled, nan, y["slide_time"] * u.time)
     else:
@@ -201,11 +204,13 @@ def _solve_one(
         rebound_angle_deg=jnp.where(rebound, jnp.rad2deg(jnp.arctan2(vt_out, vn_out)), nan),
         contact_time=t_end * u.time,
         roll_time=roll_time,
-        max_overlap=y["peak"] * u.length,
+        max_overlap=y["peak"] * u.length if terms.ledger else nan,
         energy_in=energy_in * e_unit,
         energy_out=dyn.mechanical_energy(terms, p, y) * e_unit,
         **losses,
     )
+    if not terms.ledger:
+        out.update({k: nan for k in ("energy_in", "energy_out", *losses)})
     out = {k: jnp.where(failed, nan, v).astype(dtype) for k, v in out.items()}
     return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
 

@@ -97,6 +97,7 @@ def test_invalid_values_are_named(tmp_path, old, new, field):
         ("[solver]\nmax_steps = 2.5", "solver.max_steps"),
         ('[solver]\nmethod = "euler"', "solver.method"),
         ("[solver]\nslip_width = -1e-3", "solver.slip_width"),
+        ('[solver]\noutputs = "some"', "solver.outputs"),
     ],
 )
 def test_invalid_sections_are_named(tmp_path, extra, field):

@@ -292,3 +292,14 @@ def test_very_slow_spinning_impact_is_captured_not_failed(table1, speed):
     res = ji.simulate(table1, speed, jnp.array([0.0, 30.0]), math.radians(1e6))
     assert list(res.status_names) == ["captured", "captured"]
     assert np.all(np.isfinite(np.asarray(res.contact_time)))
+
+
+def test_rebound_outputs_mode_leaves_out_the_ledger(table1):
+    speeds, angles = jnp.array([0.05, 1.66, 4.0]), jnp.array([0.0, 40.0, -40.0])
+    full = ji.simulate(table1, speeds, angles, 1e4)
+    fast = ji.simulate(table1.replace(solver={"outputs": "rebound"}), speeds, angles, 1e4)
+    np.testing.assert_array_equal(fast.status, full.status)
+    for name in ("cor_n", "vt_out", "omega_out", "contact_time"):
+        np.testing.assert_allclose(getattr(fast, name), getattr(full, name), rtol=1e-5, atol=1e-9)
+    for name in ("energy_in", "loss_friction", "max_overlap", "roll_time"):
+        assert np.all(np.isnan(np.asarray(getattr(fast, name))))
