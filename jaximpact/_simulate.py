@@ -270,8 +270,25 @@ def simulate(
 
     terms = required_terms(scene, params, angle_deg, omega0)
     cfg = _integration(scene, params, speed, angle_deg, dtype, method)
-    result = _simulate_flat(terms, cfg, params, speed, angle_deg, omega0, adjoint)
-    return jax.tree_util.tree_map(lambda x: x.reshape(shape), result)
+    inputs = _shard_over_devices((params, speed, angle_deg, omega0), size)
+    result = _simulate_flat(terms, cfg, *inputs, adjoint)
+    return jax.tree_util.tree_map(lambda x: x[:size].reshape(shape), result)
+
+
+def _shard_over_devices(inputs, size):
+    """Split a concrete batch over all local devices (GPUs, or host devices on a CPU with
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=N``): padded with copies of its last
+    impact to a multiple of the device count, then sharded along the batch."""
+    devices = jax.local_devices()
+    leaves = jax.tree_util.tree_leaves(inputs)
+    if len(devices) == 1 or size < 2 * len(devices) or not all(map(_is_concrete, leaves)):
+        return inputs
+    pad = -size % len(devices)
+    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+    return jax.tree_util.tree_map(
+        lambda x: jax.device_put(jnp.pad(x, (0, pad), mode="edge"), sharding), inputs
+    )
 
 
 def _integration(scene, params, speed, angle_deg, dtype, method) -> Integration:

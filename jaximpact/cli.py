@@ -2,7 +2,10 @@
 
 import argparse
 import math
+import os
 import sys
+
+from ._devices import use_all_cpu_cores
 
 SECTION_OF = {
     "radius": "particle",
@@ -274,6 +277,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        try:  # one XLA device per CPU core: simulate and sweep shard batches over them
+            use_all_cpu_cores()
+        except RuntimeError:  # JAX already started (cli.main called from Python): keep it
+            pass
     try:
         return args.func(args)
     except ValueError as err:  # SceneError, TableError: bad input, named by field or line
