@@ -1,0 +1,322 @@
+"""The fitting objective: weighted residuals of observed impacts against ``jaximpact.simulate``.
+
+Every distinct observed impact is simulated once, all of them in one batched, jitted call; each
+observation then picks its impact's output. A residual is ``(model - observed) / scale``, where
+``scale`` is the observation's ``sigma`` when the data give one, else a documented default
+(:data:`DEFAULT_SCALES`), so that observables in different units balance.
+
+Capture observations (``captured`` = 1 for a captured sphere, 0 for a rebound) have no model
+value to subtract, so they enter as smooth one-sided constraints on the model's normal
+restitution ``cor_n`` (which falls continuously to 0 at the capture threshold and is 0 for a
+captured sphere):
+
+* observed captured: residual ``cor_n / scale`` -- zero once the model also captures, and
+  otherwise a smooth pull toward capture;
+* observed rebound: residual ``max(0, scale - cor_n) / scale`` -- zero while the model rebounds
+  with ``cor_n >= scale``, rising continuously to 1 as the model approaches capture and staying
+  1 while it captures (no gradient there: a least-squares step into capture raises the cost
+  and is rejected, so this acts as a barrier rather than a pull).
+
+``scale`` is ``sigma`` if given, else 0.01 (a restitution margin of 1 %).
+
+A failed simulation (step limit, non-finite state) or a model output that does not exist where
+the data have a value (e.g. a rebound angle for a sphere the model captures) gives the large
+finite residual ``failure_residual`` (default 1e3, i.e. a thousand scales), never NaN, with zero
+gradient.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaximpact
+from jaximpact._simulate import scene_parameters, stiffness_estimate
+
+from ._data import OBSERVABLES, Observations, load_observations
+
+__all__ = [
+    "DEFAULT_SCALES",
+    "FITTABLE",
+    "FitError",
+    "Objective",
+    "default_scales",
+    "get_parameter",
+    "set_parameters",
+]
+
+
+class FitError(ValueError):
+    """A problem with a fit's inputs: unknown parameter, unusable data, bad option."""
+
+
+#: Fittable parameters: ``name -> (scene section, field)``.
+FITTABLE = {
+    "C_A": ("contact", "C_A"),
+    "C_H": ("contact", "C_H"),
+    "f0": ("contact", "f0"),
+    "friction": ("contact", "friction"),
+    "K": ("contact", "K"),
+    "lambda": ("model", "lambda_"),
+    "radius": ("particle", "radius"),
+    "density": ("particle", "density"),
+}
+
+#: Default residual scales (used where an observation has no sigma), as text for reports.
+DEFAULT_SCALES = {
+    "cor_n": "0.01",
+    "cor_t": "0.01",
+    "vt_out": "0.01 * speed (m/s)",
+    "omega_out": "0.01 * speed / radius (rad/s)",
+    "rebound_angle_deg": "1 degree",
+    "captured": "0.01 (a margin on cor_n; see fitting._objective)",
+}
+
+# Model outputs an observation can compare with, in this order; "captured" uses cor_n.
+_OUTPUTS = ("cor_n", "cor_t", "vt_out", "omega_out", "rebound_angle_deg")
+
+
+def default_scales(observable, speed, radius) -> np.ndarray:
+    """The default scale of each observation (see :data:`DEFAULT_SCALES`).
+
+    Arguments:
+        observable: observable names (array of str).
+        speed: impact speed of each observation (m/s).
+        radius: sphere radius for each observation (m).
+
+    Returns:
+        np.ndarray: the scales, in the observable's unit.
+    """
+    observable = np.asarray(observable)
+    speed = np.asarray(speed, dtype=float)
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), speed.shape)
+    scale = np.full(speed.shape, 0.01)
+    scale = np.where(observable == "vt_out", 0.01 * speed, scale)
+    scale = np.where(observable == "omega_out", 0.01 * speed / radius, scale)
+    return np.where(observable == "rebound_angle_deg", 1.0, scale)
+
+
+def check_names(params: Sequence[str]) -> tuple[str, ...]:
+    """Validate parameter names.
+
+    Raises:
+        FitError: no names, an unknown name, or a repeated name.
+    """
+    params = tuple(params)
+    if not params:
+        raise FitError("no parameters to fit; name some of: " + ", ".join(FITTABLE))
+    for name in params:
+        if name not in FITTABLE:
+            raise FitError(f"unknown parameter {name!r}; fittable: {', '.join(FITTABLE)}")
+    if len(set(params)) != len(params):
+        raise FitError(f"parameter named twice in {list(params)}")
+    return params
+
+
+def get_parameter(scene: jaximpact.Scene, name: str) -> float:
+    """The scene's value of a fittable parameter (a float; must be a scalar)."""
+    section, field = FITTABLE[name]
+    value = np.asarray(getattr(getattr(scene, section), field), dtype=float)
+    if value.ndim != 0:
+        raise FitError(f"scene parameter {name} is an array; a fitted parameter must be scalar")
+    return float(value)
+
+
+def set_parameters(scene: jaximpact.Scene, values: Mapping[str, object]) -> jaximpact.Scene:
+    """A copy of ``scene`` with parameters (fittable names; floats or traced arrays) replaced."""
+    sections: dict[str, dict] = {}
+    for name, value in values.items():
+        section, field = FITTABLE[name]
+        sections.setdefault(section, {})[field] = value
+    return scene.replace(**sections) if sections else scene
+
+
+class Objective:
+    """Weighted residuals of observations against the model, as a function of the parameters.
+
+    **Arguments:**
+    - `scene`: the `jaximpact.Scene` giving every parameter that is not fitted.
+    - `observations`: an `Observations` (see `load_observations`) or a path to a data file.
+    - `params`: names of the fitted parameters (keys of :data:`FITTABLE`).
+    - `failure_residual`: residual of a failed simulation or missing model output (scales).
+    - `method`: ODE method for the fit; default: the scene's, where ``"auto"`` is resolved
+      once from the stiffness at ``check_values`` (or the scene's values) since the choice
+      cannot be made on traced values.
+    - `check_values`: parameter sets (dicts) at which the stiffness is estimated.
+
+    Call :meth:`residuals` with the physical parameter values (a 1-D array in `params` order).
+    The residual function is jitted once; new values do not recompile it.
+
+    **Raises:** `FitError` for unknown or repeated parameter names, no usable observation, a
+    parameter given both as fitted and as a per-impact data column, ``cor_t`` or
+    ``rebound_angle_deg`` observed where the model cannot define it (normal impact without
+    spin for ``cor_t``), or non-finite values.
+    """
+
+    def __init__(
+        self,
+        scene: jaximpact.Scene,
+        observations,
+        params: Sequence[str],
+        *,
+        failure_residual: float = 1e3,
+        method: str | None = None,
+        check_values: Sequence[Mapping[str, float]] = (),
+    ):
+        self.params = check_names(params)
+        if not isinstance(observations, Observations):
+            observations = load_observations(observations)
+        obs = observations
+        if len(obs) == 0:
+            raise FitError(f"{obs.source}: no observations to fit")
+        for name in ("value", "speed", "angle_deg", "omega0"):
+            if not np.all(np.isfinite(getattr(obs, name))):
+                raise FitError(f"{obs.source}: non-finite {name} in the observations")
+        if np.any(np.asarray(obs.sigma)[np.isfinite(obs.sigma)] <= 0):
+            raise FitError(f"{obs.source}: sigma must be > 0")
+        unknown = set(np.unique(obs.observable)) - set(OBSERVABLES)
+        if unknown:
+            raise FitError(f"{obs.source}: unknown observable(s) {sorted(unknown)}")
+        clash = set(self.params) & set(obs.impacts.overrides)
+        if clash:
+            raise FitError(
+                f"{obs.source}: {sorted(clash)} given per impact in the data and also fitted"
+            )
+        bad_t = (obs.observable == "cor_t") & (obs.angle_deg == 0)
+        if np.any(bad_t):
+            line = int(obs.line[np.argmax(bad_t)])
+            raise FitError(f"{obs.source}, line {line}: cor_t observed at a normal impact")
+        self.observations = obs
+        self.scene = scene
+        self.failure_residual = float(failure_residual)
+        self.n_data = len(obs)
+
+        impacts = obs.impacts
+        dtype = jnp.result_type(float)
+        self._speed = jnp.asarray(impacts.speed, dtype)
+        self._angle = jnp.asarray(impacts.angle_deg, dtype)
+        self._omega0 = jnp.asarray(impacts.omega0, dtype)
+        self._overrides = {k: np.asarray(v) for k, v in impacts.overrides.items()}
+
+        radius = self._overrides.get("radius", get_parameter(scene, "radius"))
+        radius = np.broadcast_to(radius, impacts.speed.shape)[obs.impact_index]
+        sigma = np.asarray(obs.sigma, dtype=float)
+        #: Whether every observation has its own sigma (then the scales are absolute).
+        self.sigma_known = bool(np.all(np.isfinite(sigma)))
+        self.scale = np.where(
+            np.isfinite(sigma), sigma, default_scales(obs.observable, obs.speed, radius)
+        )
+        self._scale = jnp.asarray(self.scale, dtype)
+        self._value = jnp.asarray(obs.value, dtype)
+        self._index = jnp.asarray(obs.impact_index)
+        # Model output compared with each observation: its own, or cor_n for "captured".
+        compared = ["cor_n" if n == "captured" else str(n) for n in obs.observable]
+        self._outputs = tuple(n for n in _OUTPUTS if n in compared)
+        self._column = jnp.asarray([self._outputs.index(n) for n in compared])
+        self._is_capture = jnp.asarray(obs.observable == "captured")
+
+        self.initial = {name: get_parameter(scene, name) for name in self.params}
+        self.method = self._resolve_method(method, [self.initial, *check_values])
+        self._residuals = jax.jit(self._residuals_impl)
+        self._simulate = jax.jit(self._simulate_impl)
+
+    # -- building blocks ---------------------------------------------------------------------
+
+    def _resolve_method(self, method, value_sets) -> str:
+        method = method or self.scene.solver.method
+        if method != "auto":
+            return method
+        stiff = 0.0
+        for values in value_sets:
+            scene = self._scene_with(dict(values))
+            params = {k: jnp.asarray(v) for k, v in scene_parameters(scene).items()}
+            params = {k: jnp.broadcast_to(v, self._speed.shape) for k, v in params.items()}
+            stiff = max(stiff, float(stiffness_estimate(params, self._speed, self._angle)))
+        return "kvaerno5" if stiff > self.scene.solver.stiffness_limit else "tsit5"
+
+    def _scene_with(self, values: Mapping[str, object]) -> jaximpact.Scene:
+        """The scene with fitted values and the data's per-impact overrides in place."""
+        return set_parameters(self.scene, {**self._overrides, **values})
+
+    def _simulate_impl(self, theta):
+        scene = self._scene_with(dict(zip(self.params, theta, strict=True)))
+        return jaximpact.simulate(scene, self._speed, self._angle, self._omega0, method=self.method)
+
+    def _residuals_impl(self, theta):
+        return self.residuals_from_result(self._simulate_impl(theta))
+
+    def _output(self, result: jaximpact.ImpactResult, name: str):
+        """One model output at the distinct impacts, safe to differentiate.
+
+        The rebound angle is recomputed here with both ``arctan2`` arguments masked: the
+        simulator's own ``rebound_angle_deg`` of a captured impact is ``arctan2(0, 0)`` behind
+        a ``where``, whose reverse-mode gradient is NaN and breaks the whole batch's Jacobian.
+        """
+        if name != "rebound_angle_deg":
+            return getattr(result, name)
+        rebound = result.status == jaximpact.Status.REBOUND
+        vn = jnp.where(rebound, result.vn_out, 1.0)
+        vt = jnp.where(rebound, result.vt_out, 0.0)
+        return jnp.where(rebound, jnp.rad2deg(jnp.arctan2(vt, vn)), jnp.nan)
+
+    def residuals_from_result(self, result: jaximpact.ImpactResult):
+        """Residuals of every observation, given the model's result at the distinct impacts."""
+        # Only the outputs the data observe enter the graph (see _output on why that matters).
+        outputs = jnp.stack([self._output(result, name) for name in self._outputs])
+        model = outputs[self._column, self._index]
+        failed = result.status[self._index] >= jaximpact.Status.MAX_STEPS
+        bad = failed | ~jnp.isfinite(model)
+        # Mask the input too, so that no NaN reaches the gradient through the unused branch.
+        model = jnp.where(bad, 0.0, model)
+        ordinary = (model - self._value) / self._scale
+        observed_captured = self._value > 0.5
+        capture = jnp.where(
+            observed_captured,
+            model / self._scale,
+            jnp.maximum(self._scale - model, 0.0) / self._scale,
+        )
+        r = jnp.where(self._is_capture, capture, ordinary)
+        return jnp.where(bad, self.failure_residual, r)
+
+    # -- public --------------------------------------------------------------------------------
+
+    def residuals(self, theta):
+        """Weighted residuals (one per observation) at physical parameter values ``theta``.
+
+        Arguments:
+            theta: 1-D array of the fitted parameters in :attr:`params` order (SI units).
+
+        Returns:
+            jax.Array: residuals, dimensionless (in scales), finite.
+        """
+        return self._residuals(jnp.asarray(theta, jnp.result_type(float)))
+
+    def simulate(self, theta) -> jaximpact.ImpactResult:
+        """The model's `ImpactResult` at the distinct observed impacts."""
+        return self._simulate(jnp.asarray(theta, jnp.result_type(float)))
+
+    def model_values(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """Model value of each observation (``captured``: 1.0 or 0.0) and the impact status.
+
+        Returns:
+            (values, status): numpy arrays, one entry per observation (NaN where undefined).
+        """
+        result = self.simulate(theta)
+        status = np.asarray(result.status)[self.observations.impact_index]
+        values = np.empty(self.n_data)
+        for i, (name, k) in enumerate(
+            zip(self.observations.observable, self.observations.impact_index, strict=True)
+        ):
+            if name == "captured":
+                values[i] = float(np.asarray(result.status)[k] == jaximpact.Status.CAPTURED)
+            else:
+                values[i] = float(np.asarray(getattr(result, name))[k])
+        values[status >= jaximpact.Status.MAX_STEPS] = np.nan
+        return values, status
+
+    def scene_at(self, values: Mapping[str, float]) -> jaximpact.Scene:
+        """The scene with the given fitted values (without the data's per-impact overrides)."""
+        return set_parameters(self.scene, {k: float(v) for k, v in values.items()})

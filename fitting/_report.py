@@ -1,0 +1,217 @@
+"""Reports of a fit: JSON result, readable summary, plot of data against the fitted model."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import secrets
+from pathlib import Path
+
+import numpy as np
+
+from jaximpact.tables import atomic_write_text
+
+from ._data import OBSERVABLES
+from ._fit import FitResult
+
+__all__ = ["plot_fit", "result_dict", "summary", "write_json"]
+
+_UNITS = {
+    "cor_n": "",
+    "cor_t": "",
+    "vt_out": "m/s",
+    "omega_out": "rad/s",
+    "rebound_angle_deg": "deg",
+    "captured": "1 = captured",
+}
+
+
+def _num(x):
+    """A JSON-safe float: ``None`` (null) for NaN and infinities, which JSON lacks."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def result_dict(result: FitResult) -> dict:
+    """The fit as a JSON-ready dict.
+
+    Returns:
+        dict: ``params`` (``{name: {"value", "stderr"}}``), ``correlation``, ``cost``,
+        ``converged``, ``n_data``, ``condition_number``, ``residual_scale``, ``warnings``,
+        ``timings`` (s), ``solver``, ``message``, ``starts`` and ``data`` (source file,
+        observation counts). Undefined numbers are ``null``.
+    """
+    obs = result.objective.observations
+    return {
+        "params": {
+            n: {"value": _num(result.values[n]), "stderr": _num(result.stderr[n])}
+            for n in result.params
+        },
+        "correlation": [[_num(c) for c in row] for row in result.correlation],
+        "cost": _num(result.cost),
+        "converged": bool(result.converged),
+        "message": result.message,
+        "n_data": int(result.n_data),
+        "condition_number": _num(result.condition_number),
+        "residual_scale": _num(result.residual_scale),
+        "sigma_known": bool(result.objective.sigma_known),
+        "warnings": list(result.warnings),
+        "timings": {k: round(float(v), 4) for k, v in result.timings.items()},
+        "solver": result.solver,
+        "ode_method": result.objective.method,
+        "starts": [
+            {
+                "initial": s.initial,
+                "values": s.values,
+                "cost": _num(s.cost),
+                "converged": s.converged,
+                "steps": s.steps,
+            }
+            for s in result.starts
+        ],
+        "data": {"source": obs.source, "counts": obs.counts()},
+    }
+
+
+def write_json(path, result: FitResult) -> None:
+    """Write :func:`result_dict` as JSON, atomically (readers never see a partial file)."""
+    atomic_write_text(path, json.dumps(result_dict(result), indent=2) + "\n")
+
+
+def summary(result: FitResult) -> str:
+    """A readable multi-line summary: values with standard errors, cost, warnings, timings."""
+    lines = [
+        f"fit of {', '.join(result.params)} to {result.n_data} observations "
+        f"({result.objective.observations.source}); solver {result.solver}, "
+        f"{len(result.starts)} start(s)",
+        f"status: {'converged' if result.converged else 'NOT CONVERGED'} ({result.message})",
+    ]
+    width = max(len(n) for n in result.params)
+    for n in result.params:
+        v, e = result.values[n], result.stderr[n]
+        rel = f" ({100 * e / abs(v):.2g} %)" if math.isfinite(e) and v != 0 else ""
+        lines.append(f"  {n.ljust(width)} = {v:.6g} +- {e:.3g}{rel}")
+    lines.append(
+        f"cost (1/2 sum r^2) = {result.cost:.6g}; rms residual = "
+        f"{math.sqrt(2 * result.cost / result.n_data):.4g} scale(s); "
+        f"condition number = {result.condition_number:.3g}"
+    )
+    if len(result.params) > 1:
+        lines.append("correlation:")
+        for n, row in zip(result.params, result.correlation, strict=True):
+            lines.append(f"  {n.ljust(width)} " + " ".join(f"{c:+.3f}" for c in row))
+    for w in result.warnings:
+        lines.append(f"warning: {w}")
+    t = result.timings
+    lines.append(
+        f"time: {t['total']:.1f} s (compile {t['compile']:.1f} s, solve {t['solve']:.1f} s)"
+    )
+    return "\n".join(lines)
+
+
+def plot_fit(path, result: FitResult) -> None:
+    """Plot each observable's data (with error bars where sigma is given) and the fitted model.
+
+    The x axis is the incidence angle when the data have a single speed, else the speed. The
+    model is drawn at the observed impacts (open markers) and, where the data lie on lines of
+    one varying coordinate, as a dense curve along each line. Written atomically (temporary file
+    in the same directory, then :func:`os.replace`), with matplotlib's Agg backend.
+
+    Arguments:
+        path: output image (format from the suffix, e.g. ``.png``, ``.pdf``).
+        result: a `FitResult`.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    import jaximpact
+
+    objective = result.objective
+    obs = objective.observations
+    model, _ = objective.model_values(result.theta)
+    x_is_angle = np.unique(obs.speed).size == 1
+    x = obs.angle_deg if x_is_angle else obs.speed
+    names = [n for n in OBSERVABLES if np.any(obs.observable == n)]
+    curves = _curves(obs, x_is_angle) if not obs.impacts.overrides else []
+    grid_results = None
+    if curves:
+        speed = np.concatenate([c["speed"] for c in curves])
+        angle = np.concatenate([c["angle"] for c in curves])
+        omega = np.concatenate([c["omega0"] for c in curves])
+        grid_results = jaximpact.simulate(
+            result.scene, speed, angle, omega, method=objective.method
+        )
+
+    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        sel = obs.observable == name
+        sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
+        ax.errorbar(
+            x[sel],
+            obs.value[sel],
+            yerr=sigma if np.any(sigma) else None,
+            fmt="o",
+            color="k",
+            ms=4,
+            label="data",
+        )
+        ax.plot(x[sel], model[sel], "s", mfc="none", color="C0", ms=6, label="model at data")
+        if grid_results is not None and name != "captured":
+            start = 0
+            for c in curves:
+                stop = start + c["speed"].size
+                y = np.asarray(getattr(grid_results, name))[start:stop]
+                ax.plot(c["x"], y, "-", color="C0", lw=1)
+                start = stop
+        unit = f" ({_UNITS[name]})" if _UNITS[name] else ""
+        ax.set_ylabel(name + unit)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
+    axes[0, 0].legend(fontsize=8)
+    fitted = ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.params)
+    axes[0, 0].set_title(
+        f"fit: {fitted}" + ("" if result.converged else " (NOT CONVERGED)"), fontsize=9
+    )
+    fig.tight_layout()
+    _atomic_savefig(fig, Path(path))
+    plt.close(fig)
+
+
+def _curves(obs, x_is_angle, points=60, max_curves=8):
+    """Dense model lines through the data: along the angle (single speed) or along the speed
+    for each distinct (angle, omega0) pair with at least two observed speeds."""
+    imp = obs.impacts
+    if x_is_angle:
+        keys = {(float(imp.speed[0]), float(w)) for w in imp.omega0}
+    else:
+        keys = {(float(a), float(w)) for a, w in zip(imp.angle_deg, imp.omega0, strict=True)}
+    if len(keys) > max_curves:
+        return []
+    curves = []
+    for a, b in sorted(keys):
+        if x_is_angle:
+            on = imp.omega0 == b
+            grid = np.linspace(imp.angle_deg[on].min(), imp.angle_deg[on].max(), points)
+            speed, angle = np.full(points, a), grid
+        else:
+            on = (imp.angle_deg == a) & (imp.omega0 == b)
+            if np.unique(imp.speed[on]).size < 2:
+                continue
+            grid = np.geomspace(imp.speed[on].min(), imp.speed[on].max(), points)
+            speed, angle = grid, np.full(points, a)
+        curves.append({"x": grid, "speed": speed, "angle": angle, "omega0": np.full(points, b)})
+    return curves
+
+
+def _atomic_savefig(fig, path: Path) -> None:
+    temp = path.with_name(f".{path.stem}.{secrets.token_hex(6)}.tmp{path.suffix}")
+    try:
+        fig.savefig(temp, dpi=120)
+        os.replace(temp, path)
+    except BaseException:
+        if temp.exists():
+            temp.unlink()
+        raise
