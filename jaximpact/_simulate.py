@@ -201,7 +201,14 @@ def _solve_one(
         omega_out=omega_out,
         cor_n=vn_out / v_n,
         cor_t=jnp.where(v_t == 0, nan, vt_out / safe_vt),
-        rebound_angle_deg=jnp.where(rebound, jnp.rad2deg(jnp.arctan2(vt_out, vn_out)), nan),
+        # Inputs masked too: arctan2(0, 0) of a capture has a NaN gradient ("double where").
+        rebound_angle_deg=jnp.where(
+            rebound,
+            jnp.rad2deg(
+                jnp.arctan2(jnp.where(rebound, vt_out, 0.0), jnp.where(rebound, vn_out, 1.0))
+            ),
+            nan,
+        ),
         contact_time=t_end * u.time,
         roll_time=roll_time,
         max_overlap=y["peak"] * u.length if terms.ledger else nan,
