@@ -8,6 +8,7 @@ the same run.
 """
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -35,7 +36,7 @@ SECTIONS = {
 }
 
 
-def header(info, quick, durations):
+def header(info, quick, durations, loads):
     return "\n".join(
         [
             "# Benchmarks\n",
@@ -52,7 +53,8 @@ def header(info, quick, durations):
             "estimated stiff or the slip width is below 30 rtol), float64 rtol 1e-8 / atol 1e-10, "
             "float32 rtol 1e-5 / atol 1e-7, slip_width 1e-3 (float64; 3e-3 in float32), "
             "ring_width 1e-6, max_steps 4096",
-            "- Section run times (s): " + ", ".join(f"{k} {v:.0f}" for k, v in durations.items()),
+            "- Section run times (s) [1-minute load average at the section's start]: "
+            + ", ".join(f"{k} {v:.0f} [{loads[k]:.1f}]" for k, v in durations.items()),
             "",
         ]
     )
@@ -65,18 +67,19 @@ def main():
     ap.add_argument("-o", "--output", default=str(ROOT / "BENCHMARKS.md"))
     args = ap.parse_args()
     info = machine()
-    parts, durations, data = {}, {}, {}
+    parts, durations, data, loads = {}, {}, {}, {}
     for name, fn in SECTIONS.items():
         if args.only and name not in args.only:
             continue
         t = time.perf_counter()
+        loads[name] = os.getloadavg()[0]
         print(f"[run_all] {name} ...", file=sys.stderr, flush=True)
         parts[name], data[name] = fn(quick=args.quick)
         durations[name] = time.perf_counter() - t
         print(f"[run_all] {name} done in {durations[name]:.0f} s", file=sys.stderr, flush=True)
     from summary import summary
 
-    text = header(info, args.quick, durations) + "\n" + summary(data, args.quick) + "\n"
+    text = header(info, args.quick, durations, loads) + "\n" + summary(data, args.quick) + "\n"
     text += "\n".join(parts.values())
     write_atomic(Path(args.output), text)
     print(f"[run_all] wrote {args.output}", file=sys.stderr)
