@@ -213,20 +213,23 @@ def plot(data, widths):
     ax1.axvline(DEFAULT_WIDTH, color="grey", lw=0.8)
     ax1.legend(fontsize=6)
     methods = sorted({k[1] for k in data["sol"]})
+    colors = dict(zip(methods, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
     for method in methods:
         for name, style in (("Table 1", "-"), ("non-adhesive", "--")):
+            # connected in tolerance (step) order: run times are noisy on a shared machine
             pts = sorted(
-                (v[1], v[0])
+                (k[2], v[1], v[0])
                 for k, v in data["sol"].items()
                 if k[0] == name and k[1] == method and k[3] == DEFAULT_WIDTH
             )
             if pts:
-                x, y = zip(*pts, strict=True)
+                _, x, y = zip(*pts, strict=True)
                 ax2.loglog(
                     np.array(x) * 1e6,
                     np.maximum(y, 1e-16),
                     style,
                     marker="o",
+                    color=colors[method],
                     label=f"{method} ({name})",
                 )
     ax2.set_xlabel("run time per impact (us, batch of held-out impacts)")
