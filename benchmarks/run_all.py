@@ -1,7 +1,8 @@
 """Regenerate BENCHMARKS.md and benchmarks/figures/*.png.
 
-Run: ``python benchmarks/run_all.py [--quick] [--only SECTION ...]`` (full: about 20-25 minutes
-on 2 cores; ``--quick``: a few minutes, fewer impacts and settings, for checking the pipeline).
+Run: ``python benchmarks/run_all.py [--quick] [--only SECTION ...]`` (full: about 12 minutes
+on 2 idle cores, 25 under load; ``--quick``: about 4 minutes, fewer impacts and settings, for
+checking the pipeline).
 Sections: work_precision, stability, throughput, gradient, terms. Every output file is written
 atomically. Timings on a shared machine are noisy: medians of repeats, and ratios measured in
 the same run.

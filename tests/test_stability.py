@@ -56,13 +56,10 @@ def test_extreme_impacts_table1(table1, speed, angle, omega0):
     check(table1, ref.table1_params(), speed, angle, omega0)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known: the capture event's Newton root find does not converge at 1 mm/s with spin "
-    "(diffrax nonlinear_max_steps_reached -> status solver_error; reported in BENCHMARKS.md)",
-)
 def test_oblique_spinning_1mm_per_s(table1):
-    check(table1, ref.table1_params(), 1e-3, 30.0, 1e4)
+    # was status solver_error: the capture event's Newton root find chased rounding noise
+    res, _ = check(table1, ref.table1_params(), 1e-3, 30.0, 1e4)
+    assert int(res.status) == Status.CAPTURED
 
 
 def test_small_radius(table1):
