@@ -28,13 +28,16 @@ KINDS = {
     "normal": "normal, no spin (normal-only model)",
     "normal-forced-full": "same normal impacts at angle 1e-12 (full model compiled)",
     "normal-no-adhesion": "normal, no spin, f0 = 0 (no adhesion terms)",
+    "full-cores": "oblique spinning, all CPU cores (`use_all_cpu_cores()`, as the CLI does)",
+    "full-rebound": 'oblique spinning, `outputs = "rebound"` (motion only, no ledger)',
+    "full-rebound-cores": 'oblique spinning, `outputs = "rebound"`, all CPU cores',
 }
 
 
 def impacts(kind, n, seed=0):
     rng = np.random.default_rng(seed)
     speed = rng.uniform(0.5, 5.0, n)
-    if kind == "full":
+    if kind.startswith("full"):
         return speed, rng.uniform(-60.0, 60.0, n), rng.uniform(-2e4, 2e4, n)
     angle = np.full(n, 1e-12 if kind == "normal-forced-full" else 0.0)
     return speed, angle, np.zeros(n)
@@ -57,6 +60,8 @@ def worker(cfg):
     scene = ji.table1_scene()
     if cfg["kind"] == "normal-no-adhesion":
         scene = scene.replace(contact={"f0": 0.0})
+    if "rebound" in cfg["kind"]:
+        scene = scene.replace(solver={"outputs": "rebound"})
     for n in cfg["sizes"]:
         speed, angle, omega0 = impacts(cfg["kind"], n)
 
@@ -139,6 +144,9 @@ def rhs_cost(scene, speed, angle, omega0, steps):
 def spawn(cfg, timeout=900):
     cmd = [sys.executable, str(HERE / "throughput.py"), "--worker", json.dumps(cfg)]
     env = dict(os.environ)
+    if cfg["kind"].endswith("-cores"):
+        cores = len(os.sched_getaffinity(0))
+        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={cores}"
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     rows = [json.loads(line[7:]) for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
     if proc.returncode != 0:
@@ -223,6 +231,12 @@ def run(quick=False):
     plan += [
         dict(kind=k, x64=True, sizes=[savings_n])
         for k in ("normal-forced-full", "normal-no-adhesion")
+    ]
+    big = 10000 if quick else 20000
+    plan += [
+        dict(kind=k, x64=x64, sizes=[big])
+        for k in ("full-cores", "full-rebound", "full-rebound-cores")
+        for x64 in (True, False)
     ]
     if quick:
         plan += [dict(kind="normal", x64=True, sizes=[savings_n])]
