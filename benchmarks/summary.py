@@ -155,7 +155,8 @@ def plan(tp, big):
     share = f"{rhs / h['run']:.0%}" if rhs else "a small part"
     return "\n".join(
         [
-            "### Why the throughput target is not met, and the plan past 100,000 impacts/s\n",
+            "### Why float64 with full outputs on one device stays below 20,000/s, "
+            "and the plan past 100,000 impacts/s\n",
             f"- Cost model: a vmapped batch runs every lane for the slowest lane's steps: "
             f"{h['steps_max']} steps (median {h['steps_median']:.0f}) x {h['n']} lanes x "
             f"{per_lane_step * 1e9:.0f} ns per lane-step = {h['run']:.2f} s. The model's "

@@ -4,6 +4,8 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from .tables import RESULT_COLUMNS
+
 
 class Status:
     """Integer status codes of an impact. ``failed`` covers every code >= 2."""
@@ -22,23 +24,7 @@ class Status:
         return {0: "rebound", 1: "captured"}.get(int(code), "failed")
 
 
-OUTPUT_FIELDS = (
-    "vn_out",
-    "vt_out",
-    "omega_out",
-    "cor_n",
-    "cor_t",
-    "rebound_angle_deg",
-    "contact_time",
-    "roll_time",
-    "max_overlap",
-    "energy_in",
-    "energy_out",
-    "loss_hertz_damping",
-    "loss_adhesion_damping",
-    "loss_friction",
-    "loss_rolling",
-)
+OUTPUT_FIELDS = RESULT_COLUMNS[1:]  # the results-CSV columns after "status"
 
 
 class ImpactResult(eqx.Module):
