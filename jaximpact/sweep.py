@@ -62,7 +62,6 @@ import json
 import math
 import os
 import re
-import secrets
 import signal
 import time
 from collections.abc import Iterator, Sequence
@@ -77,6 +76,7 @@ from .tables import (
     RESULT_COLUMNS,
     ImpactTable,
     TableError,
+    atomic_write_bytes,
     atomic_write_text,
     check_impact_value,
     read_impacts,
@@ -320,32 +320,14 @@ def _manifest_name(process: int) -> str:
     return f"manifest-{process:05d}.json"
 
 
-def _fsync_dir(path: Path) -> None:
-    # Persist renames; best effort, since not every platform can fsync a directory.
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    with contextlib.suppress(OSError):
-        os.fsync(fd)
-    os.close(fd)
-
-
 def _atomic_write_table(path: Path, table) -> None:
     """Write a Parquet file so that readers see either nothing/the old file or the whole file."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
-    temp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    try:
-        pq.write_table(table, temp)
-        with open(temp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(temp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temp)
-        raise
-    _fsync_dir(path.parent)
+    buffer = pa.BufferOutputStream()  # one chunk's file: a few MB at most
+    pq.write_table(table, buffer)
+    atomic_write_bytes(path, buffer.getvalue().to_pybytes())
 
 
 def _load_manifests(directory: Path) -> dict[int, dict]:

@@ -40,6 +40,7 @@ __all__ = [
     "ImpactTable",
     "TableError",
     "allowed_range",
+    "atomic_write_bytes",
     "atomic_write_text",
     "check_impact_value",
     "parse_number",
@@ -434,23 +435,31 @@ def read_impacts(path) -> ImpactTable:
 
 
 def atomic_write_text(path, text: str, *, encoding: str = "utf-8") -> None:
-    """Write ``text`` to ``path`` so that readers see either the old file or the whole new one.
-
-    The text goes to a temporary file in the same directory (so the final rename stays on one
-    file system), is flushed and fsynced, then renamed over ``path`` with :func:`os.replace`.
-    On any exception the temporary file is removed and ``path`` is left as it was.
-
-    Arguments:
-        path: the destination file.
-        text: the complete content (written with ``\\n`` line ends, as given).
-        encoding: text encoding.
+    """Write ``text`` to ``path`` atomically (see :func:`atomic_write_bytes`).
 
     Raises:
         OSError: the directory is missing or not writable, or the disk is full.
         UnicodeEncodeError: ``text`` cannot be encoded (nothing is created then).
     """
+    # Encode before creating anything: an encoding error leaves no file.
+    atomic_write_bytes(path, text.encode(encoding))
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that readers see either the old file or the whole new one.
+
+    The data goes to a temporary file in the same directory (so the final rename stays on one
+    file system), is flushed and fsynced, then renamed over ``path`` with :func:`os.replace`.
+    On any exception the temporary file is removed and ``path`` is left as it was.
+
+    Arguments:
+        path: the destination file.
+        data: the complete content.
+
+    Raises:
+        OSError: the directory is missing or not writable, or the disk is full.
+    """
     path = Path(path)
-    data = text.encode(encoding)  # before creating anything: an encoding error leaves no file
     temp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
     # O_EXCL: never reuse someone else's file; mode 0o666 lets the umask decide permissions,
     # as for any ordinarily created file (tempfile.mkstemp would force 0o600).
