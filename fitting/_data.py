@@ -29,8 +29,10 @@ from jaximpact.tables import (
     ImpactTable,
     TableError,
     check_impact_value,
+    located_error,
     parse_number,
     read_csv_rows,
+    readonly_array,
 )
 
 __all__ = [
@@ -63,18 +65,7 @@ class DataError(TableError):
 
 
 def _fail(path, line, column, problem: str) -> DataError:
-    where = [str(path)]
-    if line is not None:
-        where.append(f"line {line}")
-    if column is not None:
-        where.append(f"column '{column}'")
-    return DataError(f"{', '.join(where)}: {problem}", path=path, line=line, column=column)
-
-
-def _readonly(values, dtype) -> np.ndarray:
-    array = np.array(values, dtype=dtype, ndmin=1)
-    array.setflags(write=False)
-    return array
+    return located_error(DataError, path, line, column, problem)
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,15 +181,15 @@ class _Builder:
             lines=self.impact_lines,
             source=str(self.path),
         )
-        index = _readonly(index, np.int64)
+        index = readonly_array(index, np.int64)
         return Observations(
-            speed=_readonly(impacts.speed[index], np.float64),
-            angle_deg=_readonly(impacts.angle_deg[index], np.float64),
-            omega0=_readonly(impacts.omega0[index], np.float64),
-            observable=_readonly(names, str),
-            value=_readonly(values, np.float64),
-            sigma=_readonly(sigmas, np.float64),
-            line=_readonly(lines, np.int64),
+            speed=readonly_array(impacts.speed[index], np.float64),
+            angle_deg=readonly_array(impacts.angle_deg[index], np.float64),
+            omega0=readonly_array(impacts.omega0[index], np.float64),
+            observable=readonly_array(names, str),
+            value=readonly_array(values, np.float64),
+            sigma=readonly_array(sigmas, np.float64),
+            line=readonly_array(lines, np.int64),
             impact_index=index,
             impacts=impacts,
             source=str(self.path),

@@ -43,10 +43,12 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "check_impact_value",
+    "located_error",
     "parse_number",
     "read_csv_rows",
     "read_impacts",
     "read_results",
+    "readonly_array",
     "write_results",
 ]
 
@@ -97,7 +99,7 @@ class TableError(ValueError):
         self.column = column
 
 
-def _error(error: type[TableError], path, line, column, problem: str) -> TableError:
+def located_error(error: type[TableError], path, line, column, problem: str) -> TableError:
     """Build ``error`` with the standard "file, line N, column 'c': problem" message."""
     where = [str(path) if path is not None else "<table>"]
     if line is not None:
@@ -155,7 +157,7 @@ def check_impact_value(
         TableError: (or ``error``) the value is out of range or not finite.
     """
     if not _in_range(name, value):
-        raise _error(
+        raise located_error(
             error, path, line, name, f"value {value!r} out of range: {allowed_range(name)}"
         )
 
@@ -229,12 +231,16 @@ def read_csv_rows(path, *, error: type[TableError] = TableError) -> CsvRows:
                 header, header_line = fields, number
                 for name in header:
                     if not name:
-                        raise _error(error, path, number, None, "empty column name in the header")
+                        raise located_error(
+                            error, path, number, None, "empty column name in the header"
+                        )
                     if header.count(name) > 1:
-                        raise _error(error, path, number, name, "column named twice in the header")
+                        raise located_error(
+                            error, path, number, name, "column named twice in the header"
+                        )
                 continue
             if len(fields) != len(header):
-                raise _error(
+                raise located_error(
                     error,
                     path,
                     number,
@@ -243,7 +249,9 @@ def read_csv_rows(path, *, error: type[TableError] = TableError) -> CsvRows:
                 )
             rows.append((number, fields))
     if header is None:
-        raise _error(error, path, None, None, "no header row (the file is empty or all comments)")
+        raise located_error(
+            error, path, None, None, "no header row (the file is empty or all comments)"
+        )
     while preamble and not preamble[-1]:
         preamble.pop()
     return CsvRows(str(path), tuple(preamble), header, header_line, tuple(rows))
@@ -258,13 +266,13 @@ def parse_number(
         TableError: (or ``error``) the field is empty, not a number, NaN or infinite.
     """
     if not text:
-        raise _error(error, path, line, column, "empty value (a number is required)")
+        raise located_error(error, path, line, column, "empty value (a number is required)")
     try:
         value = float(text)
     except ValueError:
-        raise _error(error, path, line, column, f"not a number: {text!r}") from None
+        raise located_error(error, path, line, column, f"not a number: {text!r}") from None
     if not math.isfinite(value):
-        raise _error(error, path, line, column, f"value must be finite, got {text!r}")
+        raise located_error(error, path, line, column, f"value must be finite, got {text!r}")
     return value
 
 
@@ -272,7 +280,7 @@ def parse_number(
 # Impact tables
 
 
-def _frozen(values, dtype=np.float64) -> np.ndarray:
+def readonly_array(values, dtype=np.float64) -> np.ndarray:
     """A read-only 1-D copy, so a frozen table cannot be changed through its arrays."""
     array = np.array(values, dtype=dtype, ndmin=1)
     array.setflags(write=False)
@@ -312,29 +320,35 @@ class ImpactTable:
     def __post_init__(self):
         # Frozen dataclass: normalize fields through object.__setattr__.
         put = object.__setattr__
-        speed = _frozen(self.speed)
+        speed = readonly_array(self.speed)
         n = speed.size
         omega0 = np.zeros(n) if self.omega0 is None else self.omega0
-        values = {"speed": speed, "angle_deg": _frozen(self.angle_deg), "omega0": _frozen(omega0)}
+        values = {
+            "speed": speed,
+            "angle_deg": readonly_array(self.angle_deg),
+            "omega0": readonly_array(omega0),
+        }
         overrides = {}
         for name, column in self.overrides.items():
             if name not in IMPACT_PARAMETER_COLUMNS:
-                raise _error(
+                raise located_error(
                     TableError,
                     self.source or None,
                     None,
                     name,
                     f"unknown parameter; allowed: {', '.join(IMPACT_PARAMETER_COLUMNS)}",
                 )
-            overrides[name] = values[name] = _frozen(column)
-        lines = None if self.lines is None else _frozen(self.lines, np.int64)
+            overrides[name] = values[name] = readonly_array(column)
+        lines = None if self.lines is None else readonly_array(self.lines, np.int64)
         for name, column in values.items():
             if column.ndim != 1 or column.size != n:
-                raise _error(TableError, self.source or None, None, name, "length differs")
+                raise located_error(TableError, self.source or None, None, name, "length differs")
         if lines is not None and lines.size != n:
             raise TableError(f"ImpactTable: {lines.size} line numbers for {n} rows")
         if n == 0:
-            raise _error(TableError, self.source or None, None, None, "the table has no rows")
+            raise located_error(
+                TableError, self.source or None, None, None, "the table has no rows"
+            )
         columns = tuple(self.columns)
         if not columns:
             given_spin = () if self.omega0 is None else ("omega0",)
@@ -351,7 +365,7 @@ class ImpactTable:
                 if not _in_range(name, value):
                     line = None if lines is None else int(lines[i])
                     where = "" if lines is not None else f"row {i}: "
-                    raise _error(
+                    raise located_error(
                         TableError,
                         self.source or None,
                         line,
@@ -399,7 +413,7 @@ def read_impacts(path) -> ImpactTable:
     allowed = IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS
     for name in table.header:
         if name not in allowed:
-            raise _error(
+            raise located_error(
                 TableError,
                 path,
                 table.header_line,
@@ -408,11 +422,13 @@ def read_impacts(path) -> ImpactTable:
             )
     for name in ("speed", "angle_deg"):
         if name not in table.header:
-            raise _error(
+            raise located_error(
                 TableError, path, table.header_line, name, "required column missing from the header"
             )
     if not table.rows:
-        raise _error(TableError, path, table.header_line, None, "no data rows after the header")
+        raise located_error(
+            TableError, path, table.header_line, None, "no data rows after the header"
+        )
     values: dict[str, list[float]] = {name: [] for name in table.header}
     for line, fields in table.rows:
         for name, text in zip(table.header, fields, strict=True):
@@ -500,9 +516,13 @@ def _numeric_column(name: str, values, path) -> list[float]:
     try:
         array = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise _error(TableError, path, None, name, f"values are not numbers ({exc})") from None
+        raise located_error(
+            TableError, path, None, name, f"values are not numbers ({exc})"
+        ) from None
     if array.ndim != 1:
-        raise _error(TableError, path, None, name, f"expected a 1-D array, got shape {array.shape}")
+        raise located_error(
+            TableError, path, None, name, f"expected a 1-D array, got shape {array.shape}"
+        )
     return array.tolist()
 
 
@@ -533,7 +553,7 @@ def write_results(
     missing = [name for name in RESULT_COLUMNS if name not in results]
     unknown = [name for name in results if name not in RESULT_COLUMNS]
     if missing or unknown:
-        raise _error(
+        raise located_error(
             TableError,
             path,
             None,
@@ -543,20 +563,22 @@ def write_results(
         )
     clash = [name for name in columns if name in RESULT_COLUMNS]
     if clash:
-        raise _error(TableError, path, None, clash[0], "input column named like a result column")
+        raise located_error(
+            TableError, path, None, clash[0], "input column named like a result column"
+        )
 
     table: dict[str, list] = {name: _numeric_column(name, v, path) for name, v in columns.items()}
     status = [str(s) for s in np.asarray(results["status"], dtype=object).ravel()]
     for i, s in enumerate(status):
         # A status must read back as one field of one line, and not as a comment.
         if not s or s != s.strip() or s.startswith("#") or not s.isprintable():
-            raise _error(TableError, path, None, "status", f"row {i}: invalid status {s!r}")
+            raise located_error(TableError, path, None, "status", f"row {i}: invalid status {s!r}")
     table["status"] = status
     for name in RESULT_COLUMNS[1:]:
         table[name] = _numeric_column(name, results[name], path)
     lengths = {name: len(v) for name, v in table.items()}
     if len(set(lengths.values())) != 1:
-        raise _error(TableError, path, None, None, f"columns differ in length: {lengths}")
+        raise located_error(TableError, path, None, None, f"columns differ in length: {lengths}")
 
     buffer = io.StringIO()
     for comment in comments:
@@ -587,7 +609,7 @@ def read_results(path) -> dict[str, np.ndarray]:
     table = read_csv_rows(path)
     n_inputs = len(table.header) - len(RESULT_COLUMNS)
     if n_inputs < 0 or table.header[n_inputs:] != RESULT_COLUMNS:
-        raise _error(
+        raise located_error(
             TableError,
             path,
             table.header_line,
@@ -608,6 +630,8 @@ def read_results(path) -> dict[str, np.ndarray]:
             try:
                 values.append(float(text))
             except ValueError:
-                raise _error(TableError, path, line, name, f"not a number: {text!r}") from None
+                raise located_error(
+                    TableError, path, line, name, f"not a number: {text!r}"
+                ) from None
         columns[name] = np.array(values, dtype=np.float64)
     return columns
