@@ -20,6 +20,7 @@ from ._data import load_kharaz2001 as load_kharaz2001
 from ._data import load_observations as load_observations
 from ._fit import BOUNDS as BOUNDS
 from ._fit import SOLVERS as SOLVERS
+from ._fit import STATUSES as STATUSES
 from ._fit import FitResult as FitResult
 from ._fit import StartResult as StartResult
 from ._fit import fit as fit
@@ -29,6 +30,7 @@ from ._objective import DEFAULT_SCALES as DEFAULT_SCALES
 from ._objective import FITTABLE as FITTABLE
 from ._objective import FitError as FitError
 from ._objective import Objective as Objective
+from ._program import ResidualProgram as ResidualProgram
 from ._report import plot_fit as plot_fit
 from ._report import result_dict as result_dict
 from ._report import summary as summary

@@ -1,96 +1,79 @@
-"""Fitting driver: parameter transforms, solvers, multi-start, uncertainty.
+"""Fitting driver: solvers, multi-start, uncertainty, identifiability and misfit checks.
 
-The solvers work on unconstrained variables ``u`` that map to physical values: ``p = exp(u)``
-for positive parameters (C_A, C_H, f0, K, lambda, radius, density) and
-``p = lo + (hi - lo) sigmoid(u)`` for the friction coefficient in ``(0, 1.5)``. The default
-solver is optimistix's Levenberg-Marquardt on the residuals; optax Adam or L-BFGS minimize
-``cost = 1/2 sum r^2`` instead. The Jacobian is computed in reverse mode, since the simulator's
-ODE solve (diffrax, checkpointed adjoint) supports only reverse-mode differentiation.
+The solvers work on unconstrained variables ``u`` (``_transforms``: ``p = exp(u)`` for positive
+parameters, a scaled sigmoid for friction). The default solver is Levenberg-Marquardt
+(``_lm``), driven on the host by one compiled program that returns the residuals and their
+Jacobian (forward mode) for all starts at once (``_program``); optax Adam or L-BFGS minimize
+``cost = 1/2 sum r^2`` in a compiled loop instead, with the gradient ``J^T r`` from forward mode
+as well, and use the same program for the final Jacobian.
 
 Uncertainty: with ``J`` the Jacobian of the residuals in ``u`` at the optimum, the covariance
-of ``u`` is ``s^2 (J^T J)^-1``, where ``s^2 = 2 cost / (n - p)`` (the residual variance) unless
+of ``u`` is ``s^2 (J^T J)^+``, where ``s^2 = 2 cost / (n - p)`` (the residual variance) unless
 every observation carries its own sigma (then ``s^2 = 1``). The physical covariance follows
 by the delta method, ``D cov_u D`` with ``D = diag(dp/du)``; correlations are the same in both.
-The condition number reported is that of ``J`` in ``u`` (i.e. relative sensitivities for the
-log-transformed parameters).
+Rank and condition number are those of ``J`` in ``u`` (relative sensitivities for the log
+parameters); a singular value below ``1/MAX_CONDITION`` of the largest counts as zero, and
+the parameters that its direction involves are reported as not identified by the data, with
+infinite standard errors.
+
+A fit is reported ``converged`` only if the optimizer converged, no impact failed, the
+uncertainty is defined (full rank, finite standard errors) and the model describes the data
+(:data:`MISFIT_P_VALUE`, :data:`MISFIT_RMS`); otherwise its ``status`` says which, and
+``problems`` says why.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import optimistix as optx
 from tqdm.auto import tqdm
 
 import jaximpact
+from jaximpact._cache import runtime_checks_as_nan
 
+from ._lm import levenberg_marquardt
 from ._objective import FitError, Objective, check_names, get_parameter
+from ._program import JACOBIAN_MODES, ResidualProgram
+from ._transforms import BOUNDS, dphys_du, to_physical, to_unbounded
 
-__all__ = ["BOUNDS", "SOLVERS", "FitResult", "StartResult", "fit", "to_physical", "to_unbounded"]
-
-#: Bounded parameters: ``name -> (lo, hi)``; all other fittable parameters are positive.
-BOUNDS = {"friction": (0.0, 1.5)}
+__all__ = [
+    "BOUNDS",
+    "SOLVERS",
+    "STATUSES",
+    "FitResult",
+    "StartResult",
+    "fit",
+    "to_physical",
+    "to_unbounded",
+]
 
 #: Solver names accepted by :func:`fit`.
 SOLVERS = ("lm", "adam", "lbfgs")
 
-#: Thresholds of the identifiability warning.
+#: Values of :attr:`FitResult.status`, in the order they are checked.
+STATUSES = ("not converged", "undetermined", "misfit", "converged")
+
+#: Identifiability: a singular value of ``J`` below ``1/MAX_CONDITION`` of the largest is zero
+#: (rank deficient); a parameter whose share of such a direction exceeds ``NULL_SHARE`` is
+#: named as not identified; correlations beyond ``MAX_CORRELATION`` are warned about.
 MAX_CORRELATION = 0.95
 MAX_CONDITION = 1e8
+NULL_SHARE = 0.1
 
-
-def to_unbounded(names: Sequence[str], values) -> np.ndarray:
-    """Physical values -> unconstrained solver variables (log, or logit for bounded ones).
-
-    Raises:
-        FitError: a value outside its allowed range (<= 0, or outside ``BOUNDS``).
-    """
-    u = []
-    for name, p in zip(names, np.asarray(values, dtype=float), strict=True):
-        if name in BOUNDS:
-            lo, hi = BOUNDS[name]
-            if not lo < p < hi:
-                raise FitError(f"initial {name} = {p!r} must be in ({lo}, {hi})")
-            x = (p - lo) / (hi - lo)
-            u.append(math.log(x / (1 - x)))
-        else:
-            if not (p > 0 and math.isfinite(p)):
-                raise FitError(
-                    f"initial {name} = {p!r} must be finite and > 0 (it is fitted on a log "
-                    "scale); give a positive starting value"
-                )
-            u.append(math.log(p))
-    return np.array(u)
-
-
-def to_physical(names: Sequence[str], u):
-    """Unconstrained variables -> physical values (works on numpy or JAX arrays)."""
-    out = []
-    for i, name in enumerate(names):
-        if name in BOUNDS:
-            lo, hi = BOUNDS[name]
-            out.append(lo + (hi - lo) * jax.nn.sigmoid(u[i]))
-        else:
-            out.append(jnp.exp(u[i]))
-    return jnp.stack(out)
-
-
-def _dphys_du(names, p) -> np.ndarray:
-    d = []
-    for name, v in zip(names, p, strict=True):
-        if name in BOUNDS:
-            lo, hi = BOUNDS[name]
-            d.append((v - lo) * (hi - v) / (hi - lo))
-        else:
-            d.append(v)
-    return np.array(d)
+#: Misfit with sigmas: chi-square p-value below this and reduced chi-square above
+#: ``MISFIT_CHI2``; without sigmas: rms residual above ``MISFIT_RMS`` default scales.
+MISFIT_P_VALUE = 1e-4
+MISFIT_CHI2 = 2.0
+MISFIT_RMS = 10.0
 
 
 @dataclass
@@ -111,22 +94,38 @@ class FitResult:
 
     Attributes:
         params: fitted parameter names.
-        values, stderr: ``{name: float}``, physical units (stderr ``inf`` if undetermined).
+        values, stderr: ``{name: float}``, physical units (stderr ``inf`` where the data do not
+            determine the parameter, NaN where no residual variance exists).
         correlation, covariance: ``(p, p)`` numpy arrays, physical parameters.
         cost: ``1/2 sum r^2`` at the optimum (residuals in scales).
-        converged: the best start met the solver's convergence criterion and no impact failed
-            at the optimum.
-        n_data: number of observations; ``dof = n_data - len(params)``.
-        condition_number: of the residual Jacobian in the solver variables.
+        status: ``"converged"``, ``"not converged"`` (optimizer or failed impacts),
+            ``"undetermined"`` (the uncertainty is undefined: rank-deficient Jacobian or
+            non-finite standard errors) or ``"misfit"`` (the model does not describe the data).
+        converged: ``status == "converged"``: the only state in which the values and standard
+            errors can be taken as the answer.
+        optimizer_converged: the best start met the optimizer's convergence test.
+        problems: why the status is not ``"converged"`` (empty when it is).
+        n_data, dof: observations, and ``n_data - len(params)``.
+        rank, condition_number, singular_values: of the residual Jacobian in the solver
+            variables.
+        sensitivity: ``{name: |dr/d ln p|}``: how much the residual vector (in scales) changes
+            per relative change of each parameter.
+        unidentifiable: names of the parameters the data do not determine.
+        reduced_chi2: ``2 cost / dof`` when every observation has a sigma, else NaN;
+            ``p_value``: its chi-square upper tail probability.
+        rms_residual: ``sqrt(2 cost / n_data)``, in scales.
         residual_scale: ``s``, the factor applied to the standard errors (1 if sigma is known).
         warnings: human-readable warnings (identifiability, convergence, failures).
-        timings: seconds: ``compile`` (solver and Jacobian programs), ``solve`` (all starts,
-            with each start's Jacobian), ``total`` (including data loading and checks).
-        solver: ``"lm"``, ``"adam"`` or ``"lbfgs"``.
+        timings: seconds: ``compile`` (the programs, or loading them), ``solve`` (all starts),
+            ``total`` (including data loading and checks).
+        solver, jacobian: ``"lm"``, ``"adam"`` or ``"lbfgs"``; ``"fwd"`` or ``"rev"``.
+        program: counts of the residual program's ``traces``, ``compiles`` and ``calls``, and
+            where it came from (``source``: traced, cache or memory).
         starts: every start, best first.
         residuals: the weighted residuals at the optimum.
         scene: the scene with the fitted values in place.
         objective: the `Objective` (for reports and plots).
+        message: the status and its reasons, one line.
     """
 
     params: tuple[str, ...]
@@ -147,6 +146,19 @@ class FitResult:
     scene: jaximpact.Scene
     objective: Objective = field(repr=False)
     message: str = ""
+    status: str = "converged"
+    optimizer_converged: bool = True
+    problems: list[str] = field(default_factory=list)
+    dof: int = 0
+    rank: int = 0
+    singular_values: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    sensitivity: dict[str, float] = field(default_factory=dict)
+    unidentifiable: list[str] = field(default_factory=list)
+    reduced_chi2: float = math.nan
+    p_value: float = math.nan
+    rms_residual: float = math.nan
+    jacobian: str = "fwd"
+    program: dict = field(default_factory=dict)
 
     @property
     def theta(self) -> np.ndarray:
@@ -172,24 +184,37 @@ def _start_points(names, u0, starts, spread, seed) -> np.ndarray:
     return np.stack(points)
 
 
-def _lm_solver(objective, names, rtol, atol, max_steps):
-    fn = lambda u, _: objective._residuals_impl(to_physical(names, u))
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+def _cost_with_forward_gradient(objective, names):
+    """``cost(u) = 1/2 |r(u)|^2`` whose reverse-mode derivative (what optax asks for) is
+    computed in forward mode, ``J^T r`` with ``J`` from ``jax.jacfwd``: the simulator's
+    forward mode compiles and runs several times faster than its reverse mode."""
 
-    def solve(u0):
-        sol = optx.least_squares(
-            fn, solver, u0, options={"jac": "bwd"}, max_steps=max_steps, throw=False
-        )
-        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+    def residuals(u):
+        theta = to_physical(names, u)
+        result = objective._simulate_impl(theta, diffrax.ForwardMode())
+        r = objective.residuals_from_result(result, objective.hertz_time(theta))
+        return r, r
 
-    return solve
+    @jax.custom_vjp
+    def cost(u):
+        return 0.5 * jnp.sum(residuals(u)[0] ** 2)
+
+    def cost_fwd(u):
+        jac, r = jax.jacfwd(residuals, has_aux=True)(u)
+        return 0.5 * jnp.sum(r**2), jac.T @ r
+
+    def cost_bwd(grad, g):
+        return (g * grad,)
+
+    cost.defvjp(cost_fwd, cost_bwd)
+    return cost
 
 
 def _optax_solver(objective, names, kind, learning_rate, rtol, atol, max_steps):
     """Minimize ``cost`` with optax in a ``lax.while_loop``; converged when the step in ``u``
     and the relative change in cost both fall below tolerance (checked over 2 steps in a row
     for Adam, whose steps do not shrink by themselves until near the optimum)."""
-    cost_fn = lambda u: 0.5 * jnp.sum(objective._residuals_impl(to_physical(names, u)) ** 2)
+    cost_fn = _cost_with_forward_gradient(objective, names)
     if kind == "adam":
         opt = optax.adam(learning_rate)
     else:
@@ -241,6 +266,7 @@ def fit(
     learning_rate: float = 0.05,
     progress: bool = True,
     method: str | None = None,
+    jacobian: str = "fwd",
 ) -> FitResult:
     """Fit scene parameters to observations by weighted least squares.
 
@@ -250,20 +276,22 @@ def fit(
     - `observations`: an `Observations` or the path of a data file (wide or long CSV).
     - `params`: names to fit, from ``C_A, C_H, f0, friction, K, lambda, radius, density``.
     - `initial`: starting values ``{name: value}`` (SI) overriding the scene's.
-    - `solver`: ``"lm"`` (optimistix Levenberg-Marquardt, default), ``"adam"`` or
-      ``"lbfgs"`` (optax).
+    - `solver`: ``"lm"`` (Levenberg-Marquardt, default), ``"adam"`` or ``"lbfgs"`` (optax).
     - `starts`: number of starts: the initial guess, then a Latin-hypercube spread of
       ``starts - 1`` points up to a factor `spread` away (see `_start_points`). The start
-      with the lowest cost among the converged ones (else among all) is reported.
+      with the lowest cost among the converged ones (else among all) is reported. With
+      ``"lm"`` all starts run as one batch.
     - `seed`: seed of the spread.
     - `max_steps`: iteration limit per start; a start that reaches it is not converged.
     - `rtol`, `atol`: convergence tolerances on the step in ``u`` and the change in cost.
     - `learning_rate`: Adam's step size (in ``u``, i.e. relative for log parameters).
-    - `progress`: show a tqdm progress bar over the starts.
+    - `progress`: show what is compiled (with its time) and a progress bar, on stderr.
     - `method`: ODE method (default: the scene's; ``"auto"`` is resolved from the stiffness at
       the starting points).
+    - `jacobian`: ``"fwd"`` (forward mode, default) or ``"rev"`` (reverse mode, slower; for
+      comparison).
 
-    **Returns:** a `FitResult`.
+    **Returns:** a `FitResult`; check ``status`` (or ``converged``) and ``problems``.
 
     **Raises:** `FitError` (a `ValueError`) for unknown parameter names, unusable data,
     starting values out of range, an unknown solver or a bad option; `DataError` for a
@@ -273,6 +301,8 @@ def fit(
     names = check_names(params)
     if solver not in SOLVERS:
         raise FitError(f"unknown solver {solver!r}; choose from {', '.join(SOLVERS)}")
+    if jacobian not in JACOBIAN_MODES:
+        raise FitError(f"jacobian must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
     if not (isinstance(starts, int) and starts >= 1):
         raise FitError(f"starts must be an integer >= 1, got {starts!r}")
     if not (isinstance(max_steps, int) and max_steps >= 1):
@@ -286,88 +316,102 @@ def fit(
     p0 = [float(initial.get(n, get_parameter(scene, n))) for n in names]
     u0 = to_unbounded(names, p0)
     points = _start_points(names, u0, starts, spread, seed)
-    start_values = [
-        dict(zip(names, map(float, to_physical(names, u)), strict=True)) for u in points
-    ]
+    start_values = [_physical(names, u) for u in points]
 
     objective = Objective(scene, observations, names, method=method, check_values=start_values)
+    program = ResidualProgram(objective, len(points), jacobian=jacobian)
+    t_compile = program.compile(status=progress)
+
+    t0 = time.perf_counter()
     if solver == "lm":
-        solve = _lm_solver(objective, names, rtol, atol, max_steps)
+        bar = tqdm(
+            total=max_steps,
+            desc=f"fit (lm, {len(points)} start{'s' if len(points) > 1 else ''})",
+            unit="it",
+            disable=not progress,
+            file=sys.stderr,
+            leave=False,
+        )
+
+        def on_iteration(k, cost, active):
+            bar.update(1)
+            bar.set_postfix(cost=f"{np.min(cost):.4g}", running=int(np.sum(active)))
+
+        try:
+            out = levenberg_marquardt(
+                program,
+                points,
+                rtol=rtol,
+                atol=atol,
+                max_steps=max_steps,
+                on_iteration=on_iteration,
+            )
+        finally:
+            bar.close()
+        U, r_all, jac_all, status_all = out.u, out.r, out.jac, out.status
+        ok_all, steps_all, messages = out.converged, out.steps, out.message
     else:
         solve = _optax_solver(objective, names, solver, learning_rate, rtol, atol, max_steps)
-    dtype = jnp.result_type(float)
-
-    def evaluate(u):
-        # Residuals, their Jacobian in u (reverse mode) and the impacts' status, in one
-        # compiled program: used for every start's cost and for the uncertainty.
-        def r_aux(u):
-            result = objective._simulate_impl(to_physical(names, u))
-            r = objective.residuals_from_result(result)
-            return r, (r, result.status)
-
-        jac, (r, status) = jax.jacrev(r_aux, has_aux=True)(u)
-        return r, jac, status
-
-    t0 = time.perf_counter()
-    u_first = jnp.asarray(points[0], dtype)
-    compiled = jax.jit(solve).lower(u_first).compile()
-    evaluate = jax.jit(evaluate).lower(u_first).compile()
-    t_compile = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    runs = []
-    for k in tqdm(range(len(points)), desc=f"fit ({solver})", unit="start", disable=not progress):
-        u, ok, steps = compiled(jnp.asarray(points[k], dtype))
-        r, jac, status = (np.asarray(x) for x in evaluate(u))
-        cost = 0.5 * float(np.sum(r**2))
-        ok = bool(ok) and math.isfinite(cost)
-        values = dict(zip(names, map(float, to_physical(names, u)), strict=True))
-        start = StartResult(
-            start_values[k], values, cost, ok, int(steps), "converged" if ok else "not converged"
-        )
-        runs.append((start, r, jac, status))
+        t1 = time.perf_counter()
+        if progress:
+            print(f"compiling the {solver} loop ...", end="", file=sys.stderr, flush=True)
+        with runtime_checks_as_nan():
+            compiled = jax.jit(solve).lower(jnp.asarray(points[0], _dtype())).compile()
+        loop_compile = time.perf_counter() - t1
+        if progress:
+            print(f" {loop_compile:.1f} s", file=sys.stderr, flush=True)
+        t_compile += loop_compile
+        finals, ok_all, steps_all = [], [], []
+        for k in tqdm(
+            range(len(points)),
+            desc=f"fit ({solver})",
+            unit="start",
+            disable=not progress,
+            file=sys.stderr,
+            leave=False,
+        ):
+            u, ok, steps = compiled(jnp.asarray(points[k], _dtype()))
+            finals.append(np.asarray(u))
+            ok_all.append(bool(ok))
+            steps_all.append(int(steps))
+        U = np.stack(finals)
+        r_all, jac_all, status_all = program(U)
+        messages = [
+            "converged" if ok else f"iteration limit ({max_steps}) reached" for ok in ok_all
+        ]
     t_solve = time.perf_counter() - t0
+
+    runs = []
+    for k in range(len(points)):
+        cost = 0.5 * float(np.sum(r_all[k] ** 2))
+        ok = bool(ok_all[k]) and math.isfinite(cost)
+        message = "non-finite cost" if ok_all[k] and not ok else messages[k]
+        start = StartResult(
+            start_values[k], _physical(names, U[k]), cost, ok, int(steps_all[k]), message
+        )
+        runs.append((start, r_all[k], jac_all[k], status_all[k]))
 
     # Best start: lowest cost among converged starts, else lowest cost overall.
     runs.sort(key=lambda run: (not run[0].converged, run[0].cost))
     best, residuals, jac, status = runs[0]
-    if best.steps >= max_steps:
-        best.message = f"iteration limit ({max_steps}) reached"
     theta = np.array([best.values[n] for n in names])
     n_failed = int(np.sum(status >= jaximpact.Status.MAX_STEPS))
-
     n, p = objective.n_data, len(names)
-    warnings = []
-    dof = n - p
-    if objective.sigma_known:
-        s2 = 1.0
-    elif dof > 0:
-        s2 = 2 * best.cost / dof
-    else:
-        s2 = math.nan
-        warnings.append(f"{n} observations for {p} parameters: no residual variance, no stderr")
-    cov, corr, cond = _covariance(jac, s2, _dphys_du(names, theta))
-    stderr = {
-        nm: float(np.sqrt(cov[i, i])) if cov[i, i] >= 0 else math.nan for i, nm in enumerate(names)
-    }
+    d = _diagnose(jac, best.cost, n, names, theta, objective.sigma_known)
 
-    if not np.isfinite(cond) or cond > MAX_CONDITION:
-        warnings.append(
-            f"ill-conditioned: condition number of the Jacobian {cond:.3g} > {MAX_CONDITION:g}; "
-            "some parameter combination is not determined by the data"
-        )
-    for i in range(p):
-        for j in range(i + 1, p):
-            if abs(corr[i, j]) > MAX_CORRELATION:
-                warnings.append(
-                    f"strongly correlated: {names[i]} and {names[j]} (corr {corr[i, j]:+.3f}); "
-                    "the data determine a combination of them, not each one"
-                )
-    converged = best.converged and n_failed == 0
+    warnings, problems = list(d["warnings"]), []
     if not best.converged:
-        warnings.append(f"NOT CONVERGED: {best.message}")
+        problems.append(f"the optimizer did not converge: {best.message}")
     if n_failed:
-        warnings.append(f"{n_failed} impact(s) failed to simulate at the fitted values")
+        problems.append(f"{n_failed} impact(s) failed to simulate at the final values")
+    problems.extend(d["undetermined"])
+    problems.extend(d["misfit"])
+    n_captured = _capture_mismatch(objective, status)
+    if n_captured:
+        warnings.append(
+            f"{n_captured} impact(s) that the data show rebounding are captured by the model "
+            "at the final values"
+        )
     for i, nm in enumerate(names):
         if nm in BOUNDS:
             lo, hi = BOUNDS[nm]
@@ -381,22 +425,26 @@ def fit(
                 f"{n_conv} of {starts} starts converged, not all to the same minimum "
                 f"(costs {min(spread_costs):.6g} .. {max(spread_costs):.6g})"
             )
-    message = (
-        "converged"
-        if converged
-        else (best.message if not best.converged else f"{n_failed} impact(s) failed")
-    )
+    if not best.converged or n_failed:
+        status_name = "not converged"
+    elif d["undetermined"]:
+        status_name = "undetermined"
+    elif d["misfit"]:
+        status_name = "misfit"
+    else:
+        status_name = "converged"
+    message = status_name if not problems else f"{status_name}: " + "; ".join(problems)
     return FitResult(
         params=names,
         values=dict(best.values),
-        stderr=stderr,
-        correlation=corr,
-        covariance=cov,
+        stderr=d["stderr"],
+        correlation=d["correlation"],
+        covariance=d["covariance"],
         cost=best.cost,
-        converged=converged,
+        converged=status_name == "converged",
         n_data=n,
-        condition_number=cond,
-        residual_scale=math.sqrt(s2) if math.isfinite(s2) else math.nan,
+        condition_number=d["condition_number"],
+        residual_scale=d["residual_scale"],
         warnings=warnings,
         timings={
             "compile": t_compile,
@@ -409,29 +457,148 @@ def fit(
         scene=objective.scene_at(best.values),
         objective=objective,
         message=message,
+        status=status_name,
+        optimizer_converged=best.converged,
+        problems=problems,
+        dof=n - p,
+        rank=d["rank"],
+        singular_values=d["singular_values"],
+        sensitivity=d["sensitivity"],
+        unidentifiable=d["unidentifiable"],
+        reduced_chi2=d["reduced_chi2"],
+        p_value=d["p_value"],
+        rms_residual=math.sqrt(2 * best.cost / n) if math.isfinite(best.cost) else math.nan,
+        jacobian=jacobian,
+        program=dict(program.stats),
     )
 
 
-def _covariance(jac, s2, dpdu):
-    """Physical covariance, correlation and condition number from the Jacobian in ``u``.
+def _dtype():
+    return jnp.result_type(float)
 
-    The pseudo-inverse by SVD: a direction the data do not determine (zero singular value)
-    gives an infinite variance rather than an arbitrary finite one.
+
+def _physical(names, u) -> dict[str, float]:
+    return dict(zip(names, map(float, np.asarray(to_physical(names, jnp.asarray(u)))), strict=True))
+
+
+def _capture_mismatch(objective: Objective, status) -> int:
+    """Impacts the model captures although the data show a rebound there."""
+    obs = objective.observations
+    rebound = (obs.observable != "captured") | (obs.value < 0.5)
+    captured = np.asarray(status)[obs.impact_index] == jaximpact.Status.CAPTURED
+    return int(np.unique(obs.impact_index[rebound & captured]).size)
+
+
+def _diagnose(jac, cost, n, names, theta, sigma_known) -> dict:
+    """Uncertainty, identifiability and misfit from the Jacobian ``jac`` in ``u`` at the optimum.
+
+    Returns a dict: ``stderr``, ``covariance``, ``correlation``, ``rank``,
+    ``condition_number``, ``singular_values``, ``sensitivity``, ``unidentifiable``,
+    ``reduced_chi2``, ``p_value``, ``residual_scale``, and the messages ``warnings``,
+    ``undetermined`` and ``misfit`` (lists of strings).
     """
-    p = jac.shape[1]
-    if not np.all(np.isfinite(jac)):
-        nan = np.full((p, p), np.nan)
-        return nan, nan, math.inf
-    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
-    with np.errstate(divide="ignore"):
-        inv_sv2 = np.where(sv > sv[0] * 1e-15, 1.0 / sv**2, np.inf)
-    if np.all(np.isfinite(inv_sv2)):
-        cov_u = (vt.T * inv_sv2) @ vt * s2
+    p = len(names)
+    dof = n - p
+    dpdu = dphys_du(names, theta)
+    warnings, undetermined, misfit = [], [], []
+    nan_pp = np.full((p, p), np.nan)
+    out = {
+        "stderr": dict.fromkeys(names, math.nan),
+        "covariance": nan_pp,
+        "correlation": nan_pp.copy(),
+        "rank": 0,
+        "condition_number": math.inf,
+        "singular_values": np.full(p, np.nan),
+        "sensitivity": dict.fromkeys(names, math.nan),
+        "unidentifiable": list(names),
+        "reduced_chi2": math.nan,
+        "p_value": math.nan,
+        "residual_scale": math.nan,
+    }
+    if sigma_known:
+        s2 = 1.0
+    elif dof > 0:
+        s2 = 2 * cost / dof
     else:
-        cov_u = np.full((p, p), np.inf)
+        s2 = math.nan
+        undetermined.append(
+            f"{n} observations for {p} parameters and no sigmas: no residual variance, so no "
+            "standard errors"
+        )
+    out["residual_scale"] = math.sqrt(s2) if math.isfinite(s2) else math.nan
+
+    if sigma_known and dof > 0 and math.isfinite(cost):
+        from scipy.stats import chi2
+
+        out["reduced_chi2"] = 2 * cost / dof
+        out["p_value"] = float(chi2.sf(2 * cost, dof))
+        if out["p_value"] < MISFIT_P_VALUE and out["reduced_chi2"] > MISFIT_CHI2:
+            misfit.append(
+                f"the model does not describe the data: reduced chi-square "
+                f"{out['reduced_chi2']:.3g} for {dof} degrees of freedom (expected 1 +- "
+                f"{math.sqrt(2 / dof):.2g}; p = {out['p_value']:.2g})"
+            )
+    elif not sigma_known and dof > 0 and math.isfinite(s2) and math.sqrt(s2) > MISFIT_RMS:
+        misfit.append(
+            f"the model does not describe the data: the residuals are {math.sqrt(s2):.3g} "
+            f"default scales (rms, {dof} degrees of freedom), more than {MISFIT_RMS:g} (with "
+            "sigmas given, this would be a reduced chi-square of about "
+            f"{s2:.3g})"
+        )
+
+    if not np.all(np.isfinite(jac)):
+        undetermined.append("the Jacobian is not finite at the optimum")
+        out.update(warnings=warnings, undetermined=undetermined, misfit=misfit)
+        return out
+
+    # Sensitivity per relative change: |dr/d ln p| = |dr/du| p / (dp/du).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sens = np.linalg.norm(jac, axis=0) * np.abs(theta) / np.abs(dpdu)
+    out["sensitivity"] = {nm: float(v) for nm, v in zip(names, sens, strict=True)}
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    out["singular_values"] = sv
+    keep = sv > sv[0] / MAX_CONDITION if sv[0] > 0 else np.zeros(p, bool)
+    out["rank"] = int(np.sum(keep))
+    out["condition_number"] = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+    null = vt[~keep]
+    bad = np.any(np.abs(null) > NULL_SHARE, axis=0) if null.size else np.zeros(p, bool)
+    out["unidentifiable"] = [nm for nm, b in zip(names, bad, strict=True) if b]
+    if out["rank"] < p:
+        combos = []
+        for v in null:
+            terms = [f"{v[j]:+.2f} {names[j]}" for j in np.argsort(-np.abs(v)) if abs(v[j]) > 0.1]
+            combos.append(" ".join(terms))
+        undetermined.append(
+            f"the data do not determine {', '.join(out['unidentifiable'])}: the Jacobian has "
+            f"rank {out['rank']} of {p} (condition number {out['condition_number']:.3g} > "
+            f"{MAX_CONDITION:g}); undetermined direction(s) in log-parameters: " + "; ".join(combos)
+        )
+
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
+    cov_u = (vt.T * inv) @ vt * s2
+    cov_u[bad, :] = np.nan
+    cov_u[:, bad] = np.nan
+    cov_u[bad, bad] = np.inf
     cov = cov_u * np.outer(dpdu, dpdu)
     d = np.sqrt(np.abs(np.diag(cov_u)))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov_u / np.outer(d, d)
-    return cov, corr, cond
+    np.fill_diagonal(corr, np.where(np.isfinite(np.diag(cov_u)), 1.0, np.nan))
+    out["covariance"], out["correlation"] = cov, corr
+    out["stderr"] = {
+        nm: float(np.sqrt(cov[i, i])) if cov[i, i] >= 0 else math.nan for i, nm in enumerate(names)
+    }
+    if out["rank"] == p and not all(math.isfinite(e) for e in out["stderr"].values()):
+        if not undetermined:
+            undetermined.append("the standard errors are not finite")
+    if out["rank"] == p:
+        for i in range(p):
+            for j in range(i + 1, p):
+                if abs(corr[i, j]) > MAX_CORRELATION:
+                    warnings.append(
+                        f"strongly correlated: {names[i]} and {names[j]} (corr "
+                        f"{corr[i, j]:+.3f}); the data determine a combination of them "
+                        "better than each one"
+                    )
+    out.update(warnings=warnings, undetermined=undetermined, misfit=misfit)
+    return out

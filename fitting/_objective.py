@@ -5,28 +5,33 @@ observation then picks its impact's output. A residual is ``(model - observed) /
 ``scale`` is the observation's ``sigma`` when the data give one, else a documented default
 (:data:`DEFAULT_SCALES`), so that observables in different units balance.
 
-Capture observations (``captured`` = 1 for a captured sphere, 0 for a rebound) have no model
-value to subtract, so they enter as smooth one-sided constraints on the model's normal
-restitution ``cor_n`` (which falls continuously to 0 at the capture threshold and is 0 for a
-captured sphere):
+Captures have no rebound to compare, so the model's normal restitution is continued below
+zero for an impact the model captures: ``cor_n = -exp(-T_c / T_H)``, where ``T_c`` is the time
+at which the capture is declared and ``T_H`` the undamped Hertz contact time of that impact
+(``2.94 n*/v_n``, ``n* = (5 m v_n^2 / (4 K sqrt(r)))^(2/5)``). A deeper capture (more damping,
+stronger adhesion) is declared earlier, so the continued value falls toward -1; near the
+capture threshold it lies between -0.4 and 0, never above the rebound side's 0. It has a
+gradient, so that a fit started where the model captures impacts that the data show
+rebounding walks out of the capture region instead of stopping there.
 
-* observed captured: residual ``cor_n / scale`` -- zero once the model also captures, and
-  otherwise a smooth pull toward capture;
-* observed rebound: residual ``max(0, scale - cor_n) / scale`` -- zero while the model rebounds
-  with ``cor_n >= scale``, rising continuously to 1 as the model approaches capture and staying
-  1 while it captures (no gradient there: a least-squares step into capture raises the cost
-  and is rejected, so this acts as a barrier rather than a pull).
-
-``scale`` is ``sigma`` if given, else 0.01 (a restitution margin of 1 %).
+* ``cor_n`` observed: residual ``(cor_n - observed) / scale`` with the continued ``cor_n``;
+* ``captured`` observed (1 for a captured sphere, 0 for a rebound) -- a smooth one-sided
+  constraint: observed captured: ``max(cor_n, 0) / scale`` (zero once the model captures, else
+  a pull toward capture); observed rebound: ``max(scale - cor_n, 0) / scale`` (zero while the
+  model rebounds with ``cor_n >= scale``, above 1 and rising with the depth of capture while it
+  captures). ``scale`` is ``sigma`` if given, else 0.01;
+* any other rebound quantity (``cor_t``, ``vt_out``, ``omega_out``, ``rebound_angle_deg``)
+  observed at an impact the model captures: ``failure_residual * (1 + depth) / 2`` with
+  ``depth = exp(-T_c / T_H)``: large, and falling toward the capture threshold.
 
 A failed simulation (step limit, non-finite state) or a model output that does not exist where
-the data have a value (e.g. a rebound angle for a sphere the model captures) gives the large
-finite residual ``failure_residual`` (default 1e3, i.e. a thousand scales), never NaN, with zero
-gradient.
+the data have a value gives the large finite residual ``failure_residual`` (default 1e3, i.e. a
+thousand scales), never NaN, with zero gradient.
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -217,6 +222,8 @@ class Objective:
         self._outputs = tuple(n for n in _OUTPUTS if n in compared)
         self._column = jnp.asarray([self._outputs.index(n) for n in compared])
         self._is_capture = jnp.asarray(obs.observable == "captured")
+        # Rebound quantities other than cor_n: undefined where the model captures.
+        self._is_other = jnp.asarray(~np.isin(obs.observable, ("captured", "cor_n")))
 
         self.initial = {name: get_parameter(scene, name) for name in self.params}
         self.method = self._resolve_method(method, [self.initial, *check_values])
@@ -241,12 +248,27 @@ class Objective:
         """The scene with fitted values and the data's per-impact overrides in place."""
         return set_parameters(self.scene, {**self._overrides, **values})
 
-    def _simulate_impl(self, theta):
+    def _simulate_impl(self, theta, adjoint=None):
         scene = self._scene_with(dict(zip(self.params, theta, strict=True)))
-        return jaximpact.simulate(scene, self._speed, self._angle, self._omega0, method=self.method)
+        return jaximpact.simulate(
+            scene, self._speed, self._angle, self._omega0, method=self.method, adjoint=adjoint
+        )
 
-    def _residuals_impl(self, theta):
-        return self.residuals_from_result(self._simulate_impl(theta))
+    def hertz_time(self, theta=None):
+        """Undamped Hertz contact time of each distinct impact (s): the time scale of the
+        capture surrogate (see the module docstring). ``theta``: fitted values (default: the
+        scene's)."""
+        values = {} if theta is None else dict(zip(self.params, theta, strict=True))
+        scene = self._scene_with(values)
+        radius = jnp.asarray(scene.particle.radius)
+        mass = jnp.asarray(scene.particle.density) * (4.0 / 3.0) * jnp.pi * radius**3
+        v_n = self._speed * jnp.cos(jnp.deg2rad(self._angle))
+        ratio = 5.0 * mass * v_n**2 / (4.0 * jnp.asarray(scene.contact.K) * jnp.sqrt(radius))
+        return 2.94 * ratio**0.4 / v_n  # n* = ratio^(2/5)
+
+    def _residuals_impl(self, theta, adjoint=None):
+        result = self._simulate_impl(theta, adjoint)
+        return self.residuals_from_result(result, self.hertz_time(theta))
 
     def _output(self, result: jaximpact.ImpactResult, name: str):
         """One model output at the distinct impacts, safe to differentiate.
@@ -262,26 +284,85 @@ class Objective:
         vt = jnp.where(rebound, result.vt_out, 0.0)
         return jnp.where(rebound, jnp.rad2deg(jnp.arctan2(vt, vn)), jnp.nan)
 
-    def residuals_from_result(self, result: jaximpact.ImpactResult):
-        """Residuals of every observation, given the model's result at the distinct impacts."""
+    def residuals_from_result(self, result: jaximpact.ImpactResult, hertz_time=None):
+        """Residuals of every observation, given the model's result at the distinct impacts.
+
+        Arguments:
+            result: the `ImpactResult` at the distinct impacts.
+            hertz_time: each impact's Hertz contact time (s), the scale of the capture
+                surrogate; default :meth:`hertz_time` at the scene's values.
+        """
+        if hertz_time is None:
+            hertz_time = self.hertz_time()
+        captured = result.status == jaximpact.Status.CAPTURED
+        # Depth of capture in (0, 1]; both inputs masked ("double where") so that the NaN
+        # contact time of a failed impact never reaches a derivative.
+        t_c = jnp.where(captured, result.contact_time, 0.0)
+        t_h = jnp.where(captured, hertz_time, 1.0)
+        depth = jnp.where(captured, jnp.exp(-t_c / t_h), 0.0)
+        cor_n = jnp.where(captured, -depth, result.cor_n)  # continued below 0 (module doc)
+
         # Only the outputs the data observe enter the graph (see _output on why that matters).
-        outputs = jnp.stack([self._output(result, name) for name in self._outputs])
+        outputs = jnp.stack(
+            [cor_n if name == "cor_n" else self._output(result, name) for name in self._outputs]
+        )
         model = outputs[self._column, self._index]
         failed = result.status[self._index] >= jaximpact.Status.MAX_STEPS
-        bad = failed | ~jnp.isfinite(model)
+        captured_obs = captured[self._index]
+        other = self._is_other
+        missing = ~jnp.isfinite(model) & ~(captured_obs & other)
+        bad = failed | missing
         # Mask the input too, so that no NaN reaches the gradient through the unused branch.
-        model = jnp.where(bad, 0.0, model)
+        model = jnp.where(bad | (captured_obs & other), 0.0, model)
         ordinary = (model - self._value) / self._scale
         observed_captured = self._value > 0.5
         capture = jnp.where(
             observed_captured,
-            model / self._scale,
+            jnp.maximum(model, 0.0) / self._scale,
             jnp.maximum(self._scale - model, 0.0) / self._scale,
         )
         r = jnp.where(self._is_capture, capture, ordinary)
+        # A rebound quantity observed where the model captures: large, falling with the depth.
+        r = jnp.where(
+            captured_obs & other, 0.5 * self.failure_residual * (1.0 + depth[self._index]), r
+        )
         return jnp.where(bad, self.failure_residual, r)
 
     # -- public --------------------------------------------------------------------------------
+
+    def fingerprint(self) -> str:
+        """A digest of everything a compiled residual program of this objective depends on
+        besides the code: the scene (structure, switches and values), the data, the fitted
+        names and the settings. Equal digests mean interchangeable programs (a cache key)."""
+        h = hashlib.sha256()
+        leaves, treedef = jax.tree_util.tree_flatten(self.scene)
+        h.update(str(treedef).encode())
+        arrays = [
+            *leaves,
+            self._speed,
+            self._angle,
+            self._omega0,
+            self._scale,
+            self._value,
+            self._index,
+            self._column,
+            self._is_capture,
+            self._is_other,
+            *(self._overrides[k] for k in sorted(self._overrides)),
+        ]
+        for a in arrays:
+            a = np.asarray(a)
+            h.update(f"{a.dtype}{a.shape}".encode())
+            h.update(np.ascontiguousarray(a).tobytes())
+        settings = (
+            self.params,
+            self.method,
+            self.failure_residual,
+            self._outputs,
+            sorted(self._overrides),
+        )
+        h.update(repr(settings).encode())
+        return h.hexdigest()
 
     def residuals(self, theta):
         """Weighted residuals (one per observation) at physical parameter values ``theta``.

@@ -37,29 +37,51 @@ def result_dict(result: FitResult) -> dict:
     """The fit as a JSON-ready dict.
 
     Returns:
-        dict: ``params`` (``{name: {"value", "stderr"}}``), ``correlation``, ``cost``,
-        ``converged``, ``n_data``, ``condition_number``, ``residual_scale``, ``warnings``,
-        ``timings`` (s), ``solver``, ``message``, ``starts`` and ``data`` (source file,
-        observation counts). Undefined numbers are ``null``.
+        dict: ``status`` (converged | not converged | undetermined | misfit), ``converged``
+        (``status == "converged"``), ``message``, ``problems`` (why not converged),
+        ``params`` (``{name: {"value", "stderr", "sensitivity", "identifiable"}}``),
+        ``correlation``, ``cost``, ``n_data``, ``dof``, ``rank``, ``condition_number``,
+        ``singular_values``, ``unidentifiable`` (names), ``reduced_chi2`` and ``p_value``
+        (with sigmas), ``rms_residual``, ``residual_scale``, ``sigma_known``, ``warnings``,
+        ``timings`` (s), ``solver``, ``jacobian``, ``ode_method``, ``program`` (traces,
+        compiles, calls, source), ``starts`` and ``data`` (source file, observation counts).
+        Undefined numbers (NaN, infinite) are ``null``.
     """
     obs = result.objective.observations
     return {
+        "status": result.status,
+        "converged": bool(result.converged),
+        "optimizer_converged": bool(result.optimizer_converged),
+        "message": result.message,
+        "problems": list(result.problems),
         "params": {
-            n: {"value": _num(result.values[n]), "stderr": _num(result.stderr[n])}
+            n: {
+                "value": _num(result.values[n]),
+                "stderr": _num(result.stderr[n]),
+                "sensitivity": _num(result.sensitivity.get(n, math.nan)),
+                "identifiable": n not in result.unidentifiable,
+            }
             for n in result.params
         },
         "correlation": [[_num(c) for c in row] for row in result.correlation],
         "cost": _num(result.cost),
-        "converged": bool(result.converged),
-        "message": result.message,
         "n_data": int(result.n_data),
+        "dof": int(result.dof),
+        "rank": int(result.rank),
         "condition_number": _num(result.condition_number),
+        "singular_values": [_num(v) for v in result.singular_values],
+        "unidentifiable": list(result.unidentifiable),
+        "reduced_chi2": _num(result.reduced_chi2),
+        "p_value": _num(result.p_value),
+        "rms_residual": _num(result.rms_residual),
         "residual_scale": _num(result.residual_scale),
         "sigma_known": bool(result.objective.sigma_known),
         "warnings": list(result.warnings),
         "timings": {k: round(float(v), 4) for k, v in result.timings.items()},
         "solver": result.solver,
+        "jacobian": result.jacobian,
         "ode_method": result.objective.method,
+        "program": dict(result.program),
         "starts": [
             {
                 "initial": s.initial,
@@ -67,6 +89,7 @@ def result_dict(result: FitResult) -> dict:
                 "cost": _num(s.cost),
                 "converged": s.converged,
                 "steps": s.steps,
+                "message": s.message,
             }
             for s in result.starts
         ],
@@ -79,23 +102,45 @@ def write_json(path, result: FitResult) -> None:
     atomic_write_text(path, json.dumps(result_dict(result), indent=2) + "\n")
 
 
+_STATUS_LINE = {
+    "converged": "converged",
+    "not converged": "NOT CONVERGED",
+    "undetermined": "UNDETERMINED (the data do not fix every parameter; no valid uncertainty)",
+    "misfit": "MISFIT (the model does not describe the data)",
+}
+
+
 def summary(result: FitResult) -> str:
-    """A readable multi-line summary: values with standard errors, cost, warnings, timings."""
+    """A readable multi-line summary: status, values with standard errors and sensitivities,
+    rank, condition number, goodness of fit, problems, warnings, timings."""
     lines = [
         f"fit of {', '.join(result.params)} to {result.n_data} observations "
         f"({result.objective.observations.source}); solver {result.solver}, "
         f"{len(result.starts)} start(s)",
-        f"status: {'converged' if result.converged else 'NOT CONVERGED'} ({result.message})",
+        f"status: {_STATUS_LINE.get(result.status, result.status)}",
     ]
+    for problem in result.problems:
+        lines.append(f"  because {problem}")
     width = max(len(n) for n in result.params)
+    lines.append("parameter values, standard errors and sensitivities |dr/d ln p| (scales):")
     for n in result.params:
         v, e = result.values[n], result.stderr[n]
         rel = f" ({100 * e / abs(v):.2g} %)" if math.isfinite(e) and v != 0 else ""
-        lines.append(f"  {n.ljust(width)} = {v:.6g} +- {e:.3g}{rel}")
+        err = f"{e:.3g}" if math.isfinite(e) else ("undetermined" if e == math.inf else "n/a")
+        sens = result.sensitivity.get(n, math.nan)
+        flag = "  NOT IDENTIFIED" if n in result.unidentifiable else ""
+        lines.append(f"  {n.ljust(width)} = {v:.6g} +- {err}{rel}; sensitivity {sens:.3g}{flag}")
+    fit_quality = (
+        f"reduced chi-square = {result.reduced_chi2:.4g} (dof {result.dof}, "
+        f"p = {result.p_value:.3g})"
+        if math.isfinite(result.reduced_chi2)
+        else f"rms residual = {result.rms_residual:.4g} scale(s) (no sigmas: no chi-square)"
+    )
+    lines.append(f"cost (1/2 sum r^2) = {result.cost:.6g}; {fit_quality}")
     lines.append(
-        f"cost (1/2 sum r^2) = {result.cost:.6g}; rms residual = "
-        f"{math.sqrt(2 * result.cost / result.n_data):.4g} scale(s); "
-        f"condition number = {result.condition_number:.3g}"
+        f"Jacobian: rank {result.rank} of {len(result.params)}, condition number "
+        f"{result.condition_number:.3g}"
+        + (f"; not identified: {', '.join(result.unidentifiable)}" if result.unidentifiable else "")
     )
     if len(result.params) > 1:
         lines.append("correlation:")
@@ -173,7 +218,8 @@ def plot_fit(path, result: FitResult) -> None:
     axes[0, 0].legend(fontsize=8)
     fitted = ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.params)
     axes[0, 0].set_title(
-        f"fit: {fitted}" + ("" if result.converged else " (NOT CONVERGED)"), fontsize=9
+        f"fit: {fitted}" + ("" if result.converged else f" ({result.status.upper()})"),
+        fontsize=9,
     )
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))

@@ -13,8 +13,15 @@ from the Jacobian at the optimum. With one positional argument it is the data fi
 embedded Table 1 scene is used. Without sigma columns each observable is weighted by a
 default scale (cor_n, cor_t: 0.01; vt_out: 1 % of the speed; omega_out: 1 % of
 speed/radius; rebound_angle_deg: 1 degree) and the standard errors are scaled by the
-residual variance. Exit status: 0 converged, 1 not converged (results still written),
-2 bad input."""
+residual variance. The report gives the Jacobian's rank and condition number, each
+parameter's sensitivity, the parameters the data cannot identify, and the reduced
+chi-square when sigmas are given.
+
+Exit status: 0 converged (values and standard errors valid); 1 computation failed; 2 bad
+input (a file, field or option, named in the message); 3 the fit did not produce a
+trustworthy answer: not converged, uncertainty undefined (a parameter the data do not
+determine), or the model does not describe the data (misfit). The report and the JSON
+are still written, with the reason."""
 
 
 def add_fit_command(subparsers) -> argparse.ArgumentParser:
@@ -84,8 +91,13 @@ def _parse_init(items) -> dict[str, float]:
     return out
 
 
+#: Exit status of a fit that ran but whose result cannot be trusted (see the description).
+EXIT_NOT_CONVERGED = 3
+
+
 def cmd_fit(args) -> int:
-    """Run ``jaximpact fit``; returns the exit status (0 converged, 1 not converged).
+    """Run ``jaximpact fit``; returns the exit status (0 converged, 3 not converged,
+    undetermined or misfit).
 
     Raises:
         FitError, DataError, SceneError (all ``ValueError``): bad input; ``jaximpact.cli.main``
@@ -129,6 +141,6 @@ def cmd_fit(args) -> int:
         plot_fit(args.plot, result)
         print(f"wrote {args.plot}")
     if not result.converged:
-        print("error: the fit did NOT converge; see the warnings above", file=sys.stderr)
-        return 1
+        print(f"error: fit {result.message}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return 0

@@ -1,5 +1,6 @@
 """jaximpact: a differentiable simulator of microsphere impact (Brach, Dunn & Cheng 1999)."""
 
+from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._devices import use_all_cpu_cores as use_all_cpu_cores
 from ._results import ImpactResult as ImpactResult
 from ._results import Status as Status

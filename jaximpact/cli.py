@@ -5,7 +5,13 @@ import math
 import os
 import sys
 
+from ._cache import enable_compilation_cache
 from ._devices import use_all_cpu_cores
+
+# Exit status: 0 ok, 1 computation failed, 2 bad input (file, field, option), 3 the fit did
+# not converge (or is undetermined, or a misfit; see fitting/cli.py).
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
 
 SECTION_OF = {
     "radius": "particle",
@@ -282,11 +288,27 @@ def main(argv=None) -> int:
             use_all_cpu_cores()
         except RuntimeError:  # JAX already started (cli.main called from Python): keep it
             pass
+    # Compiled programs on disk ($JAXIMPACT_CACHE_DIR, "off" to disable): a second run of the
+    # same command loads them instead of compiling again.
+    enable_compilation_cache()
     try:
         return args.func(args)
     except ValueError as err:  # SceneError, TableError: bad input, named by field or line
         print(f"error: {err}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except OSError as err:  # a file that cannot be read or written
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"error: {where}{err.strerror or err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # the computation itself: one line, no traceback
+        if os.environ.get("JAXIMPACT_DEBUG"):
+            raise
+        text = " ".join(str(err).split())[:300]
+        print(f"error: computation failed: {type(err).__name__}: {text}", file=sys.stderr)
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

@@ -1,0 +1,69 @@
+"""Solver variables: the unconstrained ``u`` that the fit moves, and the physical values.
+
+``p = exp(u)`` for positive parameters (C_A, C_H, f0, K, lambda, radius, density) and
+``p = lo + (hi - lo) sigmoid(u)`` for the bounded ones (:data:`BOUNDS`: friction in (0, 1.5)).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._objective import FitError
+
+__all__ = ["BOUNDS", "dphys_du", "to_physical", "to_unbounded"]
+
+#: Bounded parameters: ``name -> (lo, hi)``; all other fittable parameters are positive.
+BOUNDS = {"friction": (0.0, 1.5)}
+
+
+def to_unbounded(names: Sequence[str], values) -> np.ndarray:
+    """Physical values -> unconstrained solver variables (log, or logit for bounded ones).
+
+    Raises:
+        FitError: a value outside its allowed range (<= 0, or outside ``BOUNDS``).
+    """
+    u = []
+    for name, p in zip(names, np.asarray(values, dtype=float), strict=True):
+        if name in BOUNDS:
+            lo, hi = BOUNDS[name]
+            if not lo < p < hi:
+                raise FitError(f"initial {name} = {p!r} must be in ({lo}, {hi})")
+            x = (p - lo) / (hi - lo)
+            u.append(math.log(x / (1 - x)))
+        else:
+            if not (p > 0 and math.isfinite(p)):
+                raise FitError(
+                    f"initial {name} = {p!r} must be finite and > 0 (it is fitted on a log "
+                    "scale); give a positive starting value"
+                )
+            u.append(math.log(p))
+    return np.array(u)
+
+
+def to_physical(names: Sequence[str], u):
+    """Unconstrained variables -> physical values (works on numpy or JAX arrays)."""
+    out = []
+    for i, name in enumerate(names):
+        if name in BOUNDS:
+            lo, hi = BOUNDS[name]
+            out.append(lo + (hi - lo) * jax.nn.sigmoid(u[i]))
+        else:
+            out.append(jnp.exp(u[i]))
+    return jnp.stack(out)
+
+
+def dphys_du(names, p) -> np.ndarray:
+    """``dp/du`` of each parameter at physical values ``p`` (numpy)."""
+    d = []
+    for name, v in zip(names, p, strict=True):
+        if name in BOUNDS:
+            lo, hi = BOUNDS[name]
+            d.append((v - lo) * (hi - v) / (hi - lo))
+        else:
+            d.append(v)
+    return np.array(d)
