@@ -14,7 +14,7 @@ by the delta method, ``D cov_u D`` with ``D = diag(dp/du)``; correlations are th
 Rank and condition number are those of ``J`` in ``u`` (relative sensitivities for the log
 parameters); a singular value below ``1/MAX_CONDITION`` of the largest counts as zero, and
 the parameters that its direction involves are reported as not identified by the data, with
-infinite standard errors.
+infinite standard errors; so is a parameter whose standard error exceeds its value.
 
 A fit is reported ``converged`` only if the optimizer converged, no impact failed, the
 uncertainty is defined (full rank, finite standard errors) and the model describes the data
@@ -63,11 +63,14 @@ SOLVERS = ("lm", "adam", "lbfgs")
 STATUSES = ("not converged", "undetermined", "misfit", "converged")
 
 #: Identifiability: a singular value of ``J`` below ``1/MAX_CONDITION`` of the largest is zero
-#: (rank deficient); a parameter whose share of such a direction exceeds ``NULL_SHARE`` is
-#: named as not identified; correlations beyond ``MAX_CORRELATION`` are warned about.
+#: (rank deficient); a parameter whose share of such a direction exceeds ``NULL_SHARE``, or
+#: whose standard error exceeds ``MAX_RELATIVE_STDERR`` of its value, is named as not
+#: identified; correlations beyond ``MAX_CORRELATION`` are warned about.
 MAX_CORRELATION = 0.95
 MAX_CONDITION = 1e8
 NULL_SHARE = 0.1
+#: A parameter whose standard error exceeds this fraction of its value is not determined.
+MAX_RELATIVE_STDERR = 1.0
 
 #: Misfit with sigmas: chi-square p-value below this and reduced chi-square above
 #: ``MISFIT_CHI2``; without sigmas: rms residual above ``MISFIT_RMS`` default scales.
@@ -98,7 +101,8 @@ class FitResult:
             determine the parameter, NaN where no residual variance exists).
         correlation, covariance: ``(p, p)`` numpy arrays, physical parameters.
         cost: ``1/2 sum r^2`` at the optimum (residuals in scales).
-        status: ``"converged"``, ``"not converged"`` (optimizer or failed impacts),
+        status: ``"converged"``, ``"not converged"`` (optimizer, failed impacts, or stuck
+            where the model captures impacts that the data show rebounding),
             ``"undetermined"`` (the uncertainty is undefined: rank-deficient Jacobian or
             non-finite standard errors) or ``"misfit"`` (the model does not describe the data).
         converged: ``status == "converged"``: the only state in which the values and standard
@@ -408,9 +412,11 @@ def fit(
     problems.extend(d["misfit"])
     n_captured = _capture_mismatch(objective, status)
     if n_captured:
-        warnings.append(
-            f"{n_captured} impact(s) that the data show rebounding are captured by the model "
-            "at the final values"
+        problems.insert(
+            len(problems) - len(d["undetermined"]) - len(d["misfit"]),
+            f"the fit ended where the model captures {n_captured} impact(s) that the data "
+            "show rebounding (stuck in the capture region: start with less adhesion or "
+            "damping, or use more starts)",
         )
     for i, nm in enumerate(names):
         if nm in BOUNDS:
@@ -425,7 +431,7 @@ def fit(
                 f"{n_conv} of {starts} starts converged, not all to the same minimum "
                 f"(costs {min(spread_costs):.6g} .. {max(spread_costs):.6g})"
             )
-    if not best.converged or n_failed:
+    if not best.converged or n_failed or n_captured:
         status_name = "not converged"
     elif d["undetermined"]:
         status_name = "undetermined"
@@ -591,6 +597,24 @@ def _diagnose(jac, cost, n, names, theta, sigma_known) -> dict:
     if out["rank"] == p and not all(math.isfinite(e) for e in out["stderr"].values()):
         if not undetermined:
             undetermined.append("the standard errors are not finite")
+    # Full rank, but a standard error beyond the value itself: not determined either.
+    rel = {
+        nm: out["stderr"][nm] / abs(v) if v != 0 else math.inf
+        for nm, v in zip(names, theta, strict=True)
+    }
+    loose = [nm for nm in names if math.isfinite(rel[nm]) and rel[nm] > MAX_RELATIVE_STDERR]
+    if out["rank"] == p and loose:
+        v = vt[-1]
+        combo = " ".join(
+            f"{v[j]:+.2f} {names[j]}" for j in np.argsort(-np.abs(v)) if abs(v[j]) > NULL_SHARE
+        )
+        undetermined.append(
+            f"the data do not determine {', '.join(loose)}: relative standard error "
+            + ", ".join(f"{100 * rel[nm]:.3g} %" for nm in loose)
+            + f" (> {100 * MAX_RELATIVE_STDERR:g} %); the least determined direction in "
+            f"log-parameters is {combo} (condition number {out['condition_number']:.3g})"
+        )
+        out["unidentifiable"] = [nm for nm in names if nm in loose]
     if out["rank"] == p:
         for i in range(p):
             for j in range(i + 1, p):

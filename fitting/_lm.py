@@ -8,6 +8,9 @@ never recompiles) and left unchanged.
 
 Step: ``min |r + J d|^2 + lam |D d|^2`` with ``D^2`` the running maximum of ``diag(J^T J)``
 (Moré's scaling: invariant to the units of ``u``), solved as a least-squares problem by SVD.
+No step moves a variable by more than ``MAX_STEP`` (1 in ``u``: a factor e for the log
+parameters; a longer step is shortened along its direction): a trust region in the max-norm
+that keeps a linear model from leaping across the capture threshold into a far-off region.
 A trial is accepted when it reduces the cost by at least 1e-4 of the reduction the linear
 model predicts; the damping then shrinks by ``max(1/3, 1 - (2 rho - 1)^3)`` (Nielsen), else
 it grows by a factor that doubles with every rejection in a row.
@@ -32,6 +35,7 @@ import numpy as np
 __all__ = ["LMOutcome", "levenberg_marquardt"]
 
 _ACCEPT = 1e-4
+MAX_STEP = 1.0
 _MAX_DAMPING = 1e16
 
 
@@ -53,11 +57,15 @@ class LMOutcome:
 
 
 def _step(jac, r, lam, d2):
-    """The damped Gauss-Newton step and the cost reduction the linear model predicts."""
+    """The damped Gauss-Newton step, shortened to at most ``MAX_STEP`` in every variable, and
+    the cost reduction the linear model predicts for it."""
     p = jac.shape[1]
     a = np.vstack([jac, np.diag(np.sqrt(lam * d2))])
     b = np.concatenate([-r, np.zeros(p)])
     step = np.linalg.lstsq(a, b, rcond=None)[0]
+    longest = np.max(np.abs(step))
+    if longest > MAX_STEP:
+        step = step * (MAX_STEP / longest)
     predicted = 0.5 * (r @ r - np.sum((r + jac @ step) ** 2))
     return step, predicted
 

@@ -6,19 +6,22 @@ observation then picks its impact's output. A residual is ``(model - observed) /
 (:data:`DEFAULT_SCALES`), so that observables in different units balance.
 
 Captures have no rebound to compare, so the model's normal restitution is continued below
-zero for an impact the model captures: ``cor_n = -exp(-T_c / T_H)``, where ``T_c`` is the time
-at which the capture is declared and ``T_H`` the undamped Hertz contact time of that impact
-(``2.94 n*/v_n``, ``n* = (5 m v_n^2 / (4 K sqrt(r)))^(2/5)``). A deeper capture (more damping,
-stronger adhesion) is declared earlier, so the continued value falls toward -1; near the
-capture threshold it lies between -0.4 and 0, never above the rebound side's 0. It has a
-gradient, so that a fit started where the model captures impacts that the data show
-rebounding walks out of the capture region instead of stopping there.
+zero for an impact the model captures: ``cor_n = -(1 + depth) / 2`` with the capture depth
+``depth = exp(-T_c / T_H)``, where ``T_c`` is the time at which the capture is declared and
+``T_H`` the undamped Hertz contact time of that impact (``2.94 n*/v_n``,
+``n* = (5 m v_n^2 / (4 K sqrt(r)))^(2/5)``). A deeper capture (more damping, stronger
+adhesion) is mostly declared earlier, so the continued value falls toward -1; it is never above
+-1/2, so a capture always costs more than any rebound with ``cor_n >= 0`` and a step into the
+capture region is never preferred to staying out. It has a gradient, so that a fit started
+where the model captures impacts that the data show rebounding walks out of the capture
+region instead of stopping there (where the capture is declared very late, ``T_c >> T_H``,
+the gradient fades: a fit stuck there ends with a zero-sensitivity diagnosis, not a claim).
 
 * ``cor_n`` observed: residual ``(cor_n - observed) / scale`` with the continued ``cor_n``;
 * ``captured`` observed (1 for a captured sphere, 0 for a rebound) -- a smooth one-sided
   constraint: observed captured: ``max(cor_n, 0) / scale`` (zero once the model captures, else
   a pull toward capture); observed rebound: ``max(scale - cor_n, 0) / scale`` (zero while the
-  model rebounds with ``cor_n >= scale``, above 1 and rising with the depth of capture while it
+  model rebounds with ``cor_n >= scale``, ``(scale + (1 + depth)/2) / scale`` while it
   captures). ``scale`` is ``sigma`` if given, else 0.01;
 * any other rebound quantity (``cor_t``, ``vt_out``, ``omega_out``, ``rebound_angle_deg``)
   observed at an impact the model captures: ``failure_residual * (1 + depth) / 2`` with
@@ -284,23 +287,30 @@ class Objective:
         vt = jnp.where(rebound, result.vt_out, 0.0)
         return jnp.where(rebound, jnp.rad2deg(jnp.arctan2(vt, vn)), jnp.nan)
 
-    def residuals_from_result(self, result: jaximpact.ImpactResult, hertz_time=None):
+    def residuals_from_result(
+        self, result: jaximpact.ImpactResult, hertz_time=None, value=None, scale=None
+    ):
         """Residuals of every observation, given the model's result at the distinct impacts.
 
         Arguments:
             result: the `ImpactResult` at the distinct impacts.
             hertz_time: each impact's Hertz contact time (s), the scale of the capture
                 surrogate; default :meth:`hertz_time` at the scene's values.
+            value, scale: the observed values and their scales (default: the objective's);
+                arguments so that a compiled program can take them as inputs.
         """
         if hertz_time is None:
             hertz_time = self.hertz_time()
+        value = self._value if value is None else value
+        scale = self._scale if scale is None else scale
         captured = result.status == jaximpact.Status.CAPTURED
         # Depth of capture in (0, 1]; both inputs masked ("double where") so that the NaN
         # contact time of a failed impact never reaches a derivative.
         t_c = jnp.where(captured, result.contact_time, 0.0)
         t_h = jnp.where(captured, hertz_time, 1.0)
         depth = jnp.where(captured, jnp.exp(-t_c / t_h), 0.0)
-        cor_n = jnp.where(captured, -depth, result.cor_n)  # continued below 0 (module doc)
+        # cor_n continued below zero (see the module docstring).
+        cor_n = jnp.where(captured, -0.5 * (1.0 + depth), result.cor_n)
 
         # Only the outputs the data observe enter the graph (see _output on why that matters).
         outputs = jnp.stack(
@@ -314,12 +324,12 @@ class Objective:
         bad = failed | missing
         # Mask the input too, so that no NaN reaches the gradient through the unused branch.
         model = jnp.where(bad | (captured_obs & other), 0.0, model)
-        ordinary = (model - self._value) / self._scale
-        observed_captured = self._value > 0.5
+        ordinary = (model - value) / scale
+        observed_captured = value > 0.5
         capture = jnp.where(
             observed_captured,
-            jnp.maximum(model, 0.0) / self._scale,
-            jnp.maximum(self._scale - model, 0.0) / self._scale,
+            jnp.maximum(model, 0.0) / scale,
+            jnp.maximum(scale - model, 0.0) / scale,
         )
         r = jnp.where(self._is_capture, capture, ordinary)
         # A rebound quantity observed where the model captures: large, falling with the depth.
@@ -332,8 +342,10 @@ class Objective:
 
     def fingerprint(self) -> str:
         """A digest of everything a compiled residual program of this objective depends on
-        besides the code: the scene (structure, switches and values), the data, the fitted
-        names and the settings. Equal digests mean interchangeable programs (a cache key)."""
+        besides the code: the scene (structure, switches and values), the observed impacts and
+        observables, the fitted names and the settings; not the observed values and scales,
+        which the program takes as inputs. Equal digests mean interchangeable programs (a
+        cache key)."""
         h = hashlib.sha256()
         leaves, treedef = jax.tree_util.tree_flatten(self.scene)
         h.update(str(treedef).encode())
@@ -342,8 +354,6 @@ class Objective:
             self._speed,
             self._angle,
             self._omega0,
-            self._scale,
-            self._value,
             self._index,
             self._column,
             self._is_capture,

@@ -7,6 +7,9 @@ program ``U -> (r, J, status)``:
 - ``r``: ``(starts, n_data)`` weighted residuals; ``J = dr/du``: ``(starts, n_data, p)``;
 - ``status``: ``(starts, n_impacts)`` the simulator's status of every distinct impact.
 
+The observed values and their scales are inputs too, so new measurements at the same impacts
+reuse the compiled program.
+
 The starts are a ``vmap`` over one start's computation, so they run as one batch of
 ``starts * n_impacts`` impacts (a batch of adaptive solves costs about as much as its slowest
 lane, and on a CPU a wider batch vectorizes better; one call per iteration for all starts).
@@ -73,7 +76,7 @@ class ResidualProgram:
 
     # -- the computation ------------------------------------------------------------------
 
-    def _one_start(self, u):
+    def _one_start(self, u, value, scale):
         """``(r, J, status)`` at one point ``u`` (traced once, inside the batch's vmap)."""
         self.stats["traces"] += 1
         objective, names = self.objective, self.names
@@ -82,15 +85,16 @@ class ResidualProgram:
         def residuals(u):
             theta = to_physical(names, u)
             result = objective._simulate_impl(theta, adjoint)
-            r = objective.residuals_from_result(result, objective.hertz_time(theta))
+            hertz_time = objective.hertz_time(theta)
+            r = objective.residuals_from_result(result, hertz_time, value, scale)
             return r, (r, result.status)
 
         differentiate = jax.jacfwd if self.jacobian == "fwd" else jax.jacrev
         jac, (r, status) = differentiate(residuals, has_aux=True)(u)
         return r, jac, status
 
-    def _batch(self, U):
-        return jax.vmap(self._one_start)(U)
+    def _batch(self, U, value, scale):
+        return jax.vmap(self._one_start, in_axes=(0, None, None))(U, value, scale)
 
     @property
     def key(self) -> str:
@@ -125,12 +129,17 @@ class ResidualProgram:
         if status:
             print(f"compiling {self.describe()} ...", end="", file=sys.stderr, flush=True)
         dtype = jnp.result_type(float)
-        example = jax.ShapeDtypeStruct((self.starts, len(self.names)), dtype)
+        n_data = self.objective.n_data
+        example = (
+            jax.ShapeDtypeStruct((self.starts, len(self.names)), dtype),
+            jax.ShapeDtypeStruct((n_data,), dtype),
+            jax.ShapeDtypeStruct((n_data,), dtype),
+        )
         # Equinox's checks as NaN: a raising check is a host callback, which would keep the
         # program out of the caches; a NaN Jacobian is a rejected point for the solvers.
         with runtime_checks_as_nan():
-            program, source = cached_program("fit", self._batch, (example,), key)
-            self._compiled = program.lower(example).compile()
+            program, source = cached_program("fit", self._batch, example, key)
+            self._compiled = program.lower(*example).compile()
         self.stats["compiles"] += 1
         self.stats["source"] = source
         _MEMORY[key] = (self._compiled, source)
@@ -142,11 +151,27 @@ class ResidualProgram:
             print(f" {self.compile_seconds:.1f} s ({how})", file=sys.stderr, flush=True)
         return self.compile_seconds
 
-    def __call__(self, U):
-        """``(r, J, status)`` as numpy arrays at the ``(starts, p)`` points ``U``."""
+    def __call__(self, U, value=None, scale=None):
+        """``(r, J, status)`` as numpy arrays at the ``(starts, p)`` points ``U``.
+
+        ``value``, ``scale``: observed values and scales in place of the objective's (same
+        observables and impacts), e.g. ``value = 0, scale = 1`` for the model values
+        themselves (cor_n continued below zero where the model captures)."""
         if self._compiled is None:
             self.compile()
         self.stats["calls"] += 1
-        U = jnp.asarray(np.reshape(U, (self.starts, len(self.names))), jnp.result_type(float))
-        r, jac, status = self._compiled(U)
+        dtype = jnp.result_type(float)
+        U = jnp.asarray(np.reshape(U, (self.starts, len(self.names))), dtype)
+        obj = self.objective
+        value = (
+            obj._value
+            if value is None
+            else jnp.broadcast_to(jnp.asarray(value, dtype), (obj.n_data,))
+        )
+        scale = (
+            obj._scale
+            if scale is None
+            else jnp.broadcast_to(jnp.asarray(scale, dtype), (obj.n_data,))
+        )
+        r, jac, status = self._compiled(U, value, scale)
         return np.asarray(r), np.asarray(jac), np.asarray(status)
