@@ -78,8 +78,10 @@ def cmd_simulate(args) -> int:
             omega0=np.atleast_1d(float(i.omega0)),
             columns=("speed", "angle_deg", "omega0"),
         )
-    scene = scene_with_overrides(scene, dict(table.overrides))
-    result = simulate(scene, table.speed, table.angle_deg, table.omega0)
+    result = _simulate_from_cache(scene, table)
+    if result is None:
+        scene = scene_with_overrides(scene, dict(table.overrides))
+        result = simulate(scene, table.speed, table.angle_deg, table.omega0)
     columns = result.columns()
     if args.output:
         write_results(args.output, table.as_columns(), columns)
@@ -109,6 +111,74 @@ def cmd_simulate(args) -> int:
     if failed:
         print(f"warning: {failed} impact(s) failed; see the status column", file=sys.stderr)
     return 0
+
+
+# Up to this many impacts, `jaximpact simulate` runs a traced program kept in the cache (a
+# warm run then skips the seconds of tracing); larger batches are split over all devices by
+# `simulate` itself, which a cached single-device program would not do.
+CACHED_SIMULATE_MAX = 4096
+
+
+def _simulate_from_cache(scene, table):
+    """``simulate`` of the table's impacts through a traced program from the cache.
+
+    The program takes every float parameter and the impacts as inputs, so it serves any values
+    of the same shape and scene switches. Under a trace the simulator cannot look at values,
+    so this path is taken only where that changes nothing: the impacts need the tangential
+    terms (not all normal without spin), adhesion and rolling-moment terms are not left out
+    for zero values, and the solver method is resolved here from the concrete values exactly
+    as ``simulate`` does. Returns ``None`` (use the normal path) otherwise, or with the cache
+    off, or on any problem building the program.
+    """
+    import jax
+    import numpy as np
+
+    from ._cache import cached_program
+    from ._results import ImpactResult
+    from ._simulate import _integration, scene_parameters
+
+    n = table.speed.size
+    if not jax.config.jax_compilation_cache_dir or not 1 <= n <= CACHED_SIMULATE_MAX:
+        return None
+    try:
+        dtype = jax.numpy.result_type(float)
+        values = {k: np.asarray(v, dtype=float) for k, v in scene_parameters(scene).items()}
+        values.update({k: np.asarray(v, dtype=float) for k, v in table.overrides.items()})
+        values = {k: np.broadcast_to(v, (n,)).astype(dtype) for k, v in values.items()}
+        speed, angle, omega0 = (
+            np.asarray(x, dtype=dtype) for x in (table.speed, table.angle_deg, table.omega0)
+        )
+        m = scene.model
+        if np.all(angle == 0) and np.all(omega0 == 0):
+            return None  # the normal path drops the tangential terms
+        if m.adhesion and np.all(values["f0"] == 0):
+            return None  # ... and the adhesion terms
+        if m.rolling_moments == "lambda" and np.all(values["lambda"] == 0):
+            return None
+        if (
+            m.rolling_moments == "analytical"
+            and np.all(values["C_A"] == 0)
+            and np.all(values["C_H"] == 0)
+        ):
+            return None
+        method = _integration(scene, values, speed, angle, dtype, None).method
+        names = tuple(values)
+        fields = tuple(ImpactResult.__dataclass_fields__)
+
+        def run(params, speed, angle, omega0):
+            s = scene_with_overrides(scene, dict(zip(names, params, strict=True)))
+            r = simulate(s, speed, angle, omega0, method=method)
+            return tuple(getattr(r, f) for f in fields)
+
+        from . import simulate
+
+        args = (tuple(values[k] for k in names), speed, angle, omega0)
+        key = f"simulate|{jax.tree_util.tree_structure(scene)}|{method}|{names}"
+        program, _ = cached_program("simulate", run, args, key)
+        out = program(*args)
+    except Exception:  # anything unexpected: the normal path
+        return None
+    return ImpactResult(**dict(zip(fields, out, strict=True)))
 
 
 # --- jaximpact sweep (issue 6): the engine is jaximpact/sweep.py ------------------------------

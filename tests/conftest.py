@@ -1,3 +1,5 @@
+import os
+
 import jax
 import pytest
 
@@ -10,3 +12,8 @@ def table1():
     import jaximpact
 
     return jaximpact.table1_scene()
+
+# The CLI turns JAX's persistent compilation cache on (user cache directory) unless told
+# otherwise: tests that call it in-process must not write there nor change this process's JAX
+# configuration. Tests of the cache pass their own JAXIMPACT_CACHE_DIR.
+os.environ["JAXIMPACT_CACHE_DIR"] = "off"

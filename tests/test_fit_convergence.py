@@ -265,3 +265,23 @@ def test_cli_computation_failure_exits_1(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: computation failed: RuntimeError: XLA ran out of luck")
     assert err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.slow  # about 30 s: two compilations of the paper's impacts
+def test_cached_simulate_matches_simulate(cache, capsys):
+    # With the cache on, `jaximpact simulate` runs a traced program from the cache; its table
+    # is the one `simulate` gives directly.
+    assert jax.config.jax_compilation_cache_dir == str(cache)
+    result = ji_cli._simulate_from_cache(
+        jaximpact.load_scene(),
+        jaximpact.tables.ImpactTable(
+            **{k: np.array(v) for k, v in ji_cli.PAPER_IMPACTS.items()},
+            columns=tuple(ji_cli.PAPER_IMPACTS),
+        ),
+    )
+    assert result is not None
+    direct = jaximpact.simulate(
+        jaximpact.load_scene(), *(np.array(v) for v in ji_cli.PAPER_IMPACTS.values())
+    )
+    for name in ("status", "cor_n", "vt_out", "omega_out", "contact_time", "energy_out"):
+        np.testing.assert_array_equal(getattr(result, name), getattr(direct, name), name)
