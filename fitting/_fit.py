@@ -484,7 +484,15 @@ def _dtype():
 
 
 def _physical(names, u) -> dict[str, float]:
-    return dict(zip(names, map(float, np.asarray(to_physical(names, jnp.asarray(u)))), strict=True))
+    """``to_physical`` in numpy (no JAX dispatch for a handful of numbers)."""
+    out = {}
+    for name, x in zip(names, np.asarray(u, dtype=float), strict=True):
+        if name in BOUNDS:
+            lo, hi = BOUNDS[name]
+            out[name] = float(lo + (hi - lo) / (1.0 + math.exp(-x)))
+        else:
+            out[name] = float(math.exp(x))
+    return out
 
 
 def _capture_mismatch(objective: Objective, status) -> int:
