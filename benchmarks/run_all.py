@@ -3,7 +3,8 @@
 Run: ``python benchmarks/run_all.py [--quick] [--only SECTION ...]`` (full: about 12 minutes
 on 2 idle cores, 25 under load; ``--quick``: about 4 minutes, fewer impacts and settings, for
 checking the pipeline).
-Sections: work_precision, stability, throughput, gradient, terms. Every output file is written
+Sections: work_precision, stability, throughput, gradient, terms, fit (fit and simulate
+end to end in fresh processes, cold and warm cache). Every output file is written
 atomically. Timings on a shared machine are noisy: medians of repeats, and ratios measured in
 the same run.
 """
@@ -21,6 +22,7 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
+import fit_benchmark  # noqa: E402
 import gradient_cost  # noqa: E402
 import stability  # noqa: E402
 import term_contributions  # noqa: E402
@@ -34,6 +36,7 @@ SECTIONS = {
     "throughput": throughput.run,
     "gradient": gradient_cost.run,
     "terms": term_contributions.run,
+    "fit": fit_benchmark.run,
 }
 
 
