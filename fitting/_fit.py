@@ -223,7 +223,11 @@ def _optax_solver(objective, names, kind, learning_rate, rtol, atol, max_steps):
         opt = optax.adam(learning_rate)
     else:
         opt = optax.lbfgs()
-    value_and_grad = optax.value_and_grad_from_state(cost_fn)
+    if kind == "adam":  # Adam keeps no value or gradient in its state
+        plain = jax.value_and_grad(cost_fn)
+        value_and_grad = lambda u, state: plain(u)  # noqa: E731
+    else:  # L-BFGS reuses those of its line search
+        value_and_grad = optax.value_and_grad_from_state(cost_fn)
 
     def solve(u0):
         def body(carry):

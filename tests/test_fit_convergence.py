@@ -285,3 +285,42 @@ def test_cached_simulate_matches_simulate(cache, capsys):
     )
     for name in ("status", "cor_n", "vt_out", "omega_out", "contact_time", "energy_out"):
         np.testing.assert_array_equal(getattr(result, name), getattr(direct, name), name)
+
+
+@pytest.mark.slow  # about 30 s: its own program (Kharaz impacts, friction)
+def test_microsphere_scene_on_kharaz_data_is_a_misfit():
+    # The Table 1 microsphere (radius ~ um, adhesive) cannot describe 5 mm alumina spheres.
+    result = fitting.fit(
+        jaximpact.load_scene(), fitting.kharaz2001_path(), ["friction"], progress=False
+    )
+    assert result.status == "misfit" and not result.converged
+    assert "does not describe the data" in result.message
+
+
+@pytest.mark.slow  # about 40 s: the optax loop is a program of its own
+def test_adam_still_works_with_forward_gradients(tmp_path):
+    data = tmp_path / "k.csv"
+    obs = fitting.load_kharaz2001()
+    keep = obs.angle_deg >= 25
+    rows = [
+        f"{float(s)!r},{float(a)!r},{o},{float(v)!r}"
+        for s, a, o, v in zip(
+            obs.speed[keep],
+            obs.angle_deg[keep],
+            obs.observable[keep],
+            obs.value[keep],
+            strict=True,
+        )
+    ]
+    data.write_text("speed,angle_deg,observable,value\n" + "\n".join(rows) + "\n")
+    result = fitting.fit(
+        fitting.kharaz2001_scene(friction=0.2),
+        data,
+        ["friction"],
+        solver="adam",
+        learning_rate=0.1,
+        max_steps=300,
+        progress=False,
+    )
+    assert result.optimizer_converged, result.message
+    assert 0.085 <= result.values["friction"] <= 0.105
