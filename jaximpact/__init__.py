@@ -17,6 +17,7 @@ from ._scene import table1_scene as table1_scene
 from ._scene_io import default_scene_path as default_scene_path
 from ._scene_io import load_scene as load_scene
 from ._scene_io import scene_from_dict as scene_from_dict
+from ._sensitivity import output_jacobian as output_jacobian
 from ._simulate import simulate as simulate
 
 __version__ = "0.1.0"

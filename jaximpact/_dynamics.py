@@ -35,6 +35,11 @@ class Terms(eqx.Module):
     slip_width: float = eqx.field(static=True)
     ring_width: float = eqx.field(static=True)
     ledger: bool = eqx.field(static=True, default=True)  # losses, peak overlap, roll time
+    # Numerical settings of the smooth model (Hertz units; see docs/physics.md, "Derivatives"):
+    # the overlap below which the contact is treated analytically, and the rate of the linear
+    # pull toward rolling inside the slip width.
+    contact_floor: float = eqx.field(static=True, default=0.0)
+    slip_relaxation: float = eqx.field(static=True, default=0.0)
 
     @property
     def has_moments(self):
@@ -90,9 +95,9 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
         # The spin enters the ring only with the analytical moments, where the ring also
         # yields M_A; otherwise the spin-free ring keeps the adhesion damping dissipative.
         ring_spin = w if terms.rolling_moments == "analytical" else jnp.zeros_like(w)
-        f["F_A"] = laws.adhesion_force(n, p.radius, p.f0)
+        f["F_A"] = laws.adhesion_force(n, p.radius, p.f0, terms.contact_floor)
         f["F_AD"], M_A = laws.adhesion_damping(
-            n, ndot, ring_spin, p.radius, p.f0, p.C_A, terms.ring_width
+            n, ndot, ring_spin, p.radius, p.f0, p.C_A, terms.ring_width, terms.contact_floor
         )
         F_n = F_n + f["F_A"] + f["F_AD"]
     f["F_n"] = F_n
@@ -105,7 +110,7 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
             f["M_A"] = M_A if terms.adhesion else jnp.zeros_like(n)
             M = f["M_A"] + f["M_H"]
         else:
-            M = laws.lambda_moment(n, w, p.radius, p.C_A, p.lam)
+            M = laws.lambda_moment(n, w, p.radius, p.C_A, p.lam, terms.contact_floor)
         f["M_roll"] = M
     if terms.friction_load == "net":
         load = jnp.abs(F_n)
@@ -114,8 +119,13 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
     slip = y["vt"] - p.radius * w
     # Friction that keeps s = 0 in pure rolling: from s' = F_t (1/m + r^2/(m k^2)) - r M/(m k^2).
     hold = p.radius * M / (p.inertia + p.radius**2) if terms.has_moments else jnp.zeros_like(n)
+    # The pull toward rolling acts on the slip through the effective mass of s' = F_t / m_eff,
+    # so that the slip relaxes at the same rate with or without rotation.
+    m_eff = p.inertia / (p.inertia + p.radius**2) if terms.rotation else 1.0
     f["slip"] = slip
-    f["F_t"] = laws.friction_force(slip, load, p.friction, hold, terms.slip_width)
+    f["F_t"] = laws.friction_force(
+        slip, load, p.friction, hold, terms.slip_width, terms.slip_relaxation * m_eff
+    )
     return f
 
 

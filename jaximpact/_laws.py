@@ -12,9 +12,19 @@ import jax.numpy as jnp
 from ._safe import safe_pow, safe_sqrt, smooth_sign_flat, smooth_step_flat
 
 
-def contact_radius(n, radius):
-    """Hertz contact radius ``a = sqrt(r n)`` (0 out of contact)."""
-    return safe_sqrt(radius * n)
+def contact_radius(n, radius, n_min=0.0):
+    """Hertz contact radius ``a = sqrt(r n)`` (0 out of contact).
+
+    ``n_min > 0`` continues ``a`` below ``n_min`` along its tangent there (down to 0 at
+    ``n = -n_min``): the simulator integrates only ``n >= n_min`` and treats the thin shell
+    below analytically, but Runge-Kutta stages of the last step overshoot into it, where the
+    infinite slope of ``sqrt`` at 0 would wreck the derivatives of the step (see docs/physics.md).
+    """
+    if n_min <= 0.0:
+        return safe_sqrt(radius * n)
+    root = jnp.sqrt(n_min)
+    tangent = jnp.maximum((n + n_min) / (2.0 * root), 0.0)
+    return jnp.sqrt(radius) * jnp.where(n > n_min, jnp.sqrt(jnp.maximum(n, n_min)), tangent)
 
 
 def hertz_force(n, radius, K):
@@ -27,9 +37,9 @@ def hertz_damping_force(n, ndot, radius, K, C_H):
     return hertz_force(n, radius, K) * C_H * ndot
 
 
-def adhesion_force(n, radius, f0):
-    """Ring adhesion ``F_A = 2 pi a f0`` (eq. 2), attractive."""
-    return 2.0 * jnp.pi * contact_radius(n, radius) * f0
+def adhesion_force(n, radius, f0, n_min=0.0):
+    """Ring adhesion ``F_A = 2 pi a f0`` (eq. 2), attractive. (``n_min``: see contact_radius.)"""
+    return 2.0 * jnp.pi * contact_radius(n, radius, n_min) * f0
 
 
 def hertz_potential(n, radius, K):
@@ -70,7 +80,7 @@ def ring_integrals(ndot, b, width=0.0):
     return i0, i1
 
 
-def adhesion_damping(n, ndot, w, radius, f0, C_A, width=0.0):
+def adhesion_damping(n, ndot, w, radius, f0, C_A, width=0.0, n_min=0.0):
     """Adhesion damping of the separating ring: normal force ``F_AD`` and peeling moment ``M_A``.
 
     Line force ``f0 C_A (-u)`` (attractive) where the ring point separates (``u < 0``). Limits:
@@ -78,7 +88,7 @@ def adhesion_damping(n, ndot, w, radius, f0, C_A, width=0.0):
     ``M_A = -pi f0 C_A a^3 w`` (eq. 12). This replaces the printed ``2 pi a f0 C_A ndot``,
     which adds energy (CONVENTIONS erratum). Pass ``w = 0`` for the spin-free ring.
     """
-    a = contact_radius(n, radius)
+    a = contact_radius(n, radius, n_min)
     i0, i1 = ring_integrals(ndot, w * a, width)
     return f0 * C_A * a * i0, f0 * C_A * a * a * i1
 
@@ -89,12 +99,12 @@ def hertz_rolling_moment(n, w, radius, K, C_H):
     return -(K / 5.0) * C_H * radius**1.5 * safe_pow(n, 2.5) * w
 
 
-def lambda_moment(n, w, radius, C_A, lam):
+def lambda_moment(n, w, radius, C_A, lam, n_min=0.0):
     """Constant-lambda rolling moment ``g = -lambda C_A a w`` (eq. 19-22), opposing the spin."""
-    return -lam * C_A * contact_radius(n, radius) * w
+    return -lam * C_A * contact_radius(n, radius, n_min) * w
 
 
-def friction_force(slip, load, friction, hold_force, width):
+def friction_force(slip, load, friction, hold_force, width, restoring=0.0):
     """Regularized Coulomb friction on the sphere at the contact point.
 
     Exact law: ``-f N sign(s)`` while sliding; in pure rolling (``s = 0``) the force that keeps
@@ -106,8 +116,14 @@ def friction_force(slip, load, friction, hold_force, width):
     At ``s = 0`` this is exactly the holding force, so pure rolling is kept without a stiff
     restoring term; ``|s| > 3 width`` gives Coulomb sliding to 1e-7. The power ``F_t s`` is
     ``<= 0`` whenever ``hold_force = 0`` (no rolling moments).
+
+    ``restoring >= 0`` adds ``-restoring * s`` to the holding force (still bounded by ``f N``):
+    a mild linear pull toward rolling. Without it the law is flat at ``s = 0`` (zero slope), so
+    a derivative taken at zero slip sees no friction at all: at normal incidence
+    ``d omega_out / d omega0`` came out 1 instead of the exact 2/7. The pull only dissipates
+    (its power is ``-restoring s^2 (1 - p) <= 0``).
     """
     limit = friction * load
     z = slip / width
-    hold = jnp.clip(hold_force, -limit, limit)
+    hold = jnp.clip(hold_force - restoring * slip, -limit, limit)
     return (1.0 - smooth_step_flat(z)) * hold - limit * smooth_sign_flat(z)

@@ -1,9 +1,12 @@
 """Choice of the diffrax solver and step-size controller from the scene's ``[solver]`` section."""
 
 import diffrax
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+
+from ._tsit5 import LaneTsit5
 
 
 class RungeKuttaGill(diffrax.AbstractERK):
@@ -25,18 +28,29 @@ class RungeKuttaGill(diffrax.AbstractERK):
         return 4
 
 
-EXPLICIT = {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8}
+# Numerical settings that keep derivatives right at the model's singular points (Hertz units;
+# measured in BENCHMARKS.md, "Derivatives"). The overlap below which the contact is integrated
+# in closed form: there the adhesion force grows like sqrt(n), whose infinite slope at n = 0
+# left the derivatives of every adhesive rebound ~0.5 % off at any tolerance. Its effect on the
+# outputs is of the order of the shell's share of the work, (f0 sqrt(r)) floor^1.5 ~ 1e-6.
+CONTACT_FLOOR = 1e-4
+# Rate of the linear pull toward rolling inside the slip width (see friction_force): fast
+# against an impact (~3 Hertz times) yet slow enough for Tsit5's steps.
+SLIP_RELAXATION = 20.0
+
+EXPLICIT = {"tsit5": LaneTsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8}
 IMPLICIT = {"kvaerno3": diffrax.Kvaerno3, "kvaerno5": diffrax.Kvaerno5}
 
 
 def default_tolerances(dtype, rtol, atol):
-    """Tolerances by precision: float64 1e-8/1e-10, float32 1e-5/1e-7 (unless given).
+    """Tolerances by precision: float64 1e-10/1e-12, float32 1e-5/1e-7 (unless given).
 
-    float64 at 1e-8 keeps the outputs within ~4e-6 of the exact switched reference and closes
-    the energy ledger to ~1e-6 (measured, see BENCHMARKS.md).
+    float64 at 1e-10 keeps the derivatives within ~3e-4 of finite differences of the exact
+    reference (at 1e-8 they were up to 8e-3 off, the outputs themselves ~2e-7: derivatives of a
+    discretized solve converge more slowly than its values; BENCHMARKS.md, "Derivatives").
     """
     if jnp.finfo(dtype).bits >= 64:
-        return (rtol or 1e-8), (atol or 1e-10)
+        return (rtol or 1e-10), (atol or 1e-12)
     return (rtol or 1e-5), (atol or 1e-7)
 
 
@@ -59,7 +73,27 @@ def make_solver(method: str, dtype):
     raise ValueError(f"solver.method {method!r} cannot be used here")
 
 
+class LanePIDController(diffrax.PIDController):
+    """diffrax's PID controller with each new step size rounded to 24 significant bits.
+
+    The step-size arithmetic (powers of the error ratio, fused differently by XLA for different
+    batch shapes) can differ in the last bit between a lane alone and the same lane in a batch,
+    and an adaptive solve amplifies that into a different sequence of steps. Rounding the step
+    to a coarse binary grid makes such one-ulp differences vanish (unless a step lands within
+    1e-16 of a grid point, about once in 1e8 steps) and changes nothing else: a step 6e-8 shorter
+    or longer than the controller's choice.
+    """
+
+    def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, state):
+        keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
+            t0, t1, y0, y1_candidate, args, y_error, error_order, state
+        )
+        mantissa, exponent = jnp.frexp(jax.lax.stop_gradient(next_t1 - next_t0))
+        dt = jnp.ldexp(jnp.round(mantissa * 2.0**24) / 2.0**24, exponent)
+        return keep, next_t0, next_t0 + dt, jump, state, result
+
+
 def make_controller(method, rtol, atol, dt, norm):
     if method == "rk4":
         return diffrax.ConstantStepSize(), dt
-    return diffrax.PIDController(rtol=rtol, atol=atol, norm=norm), 1e-2
+    return LanePIDController(rtol=rtol, atol=atol, norm=norm), 1e-2

@@ -1,0 +1,244 @@
+"""Derivatives of the smooth model against the exact reference, and their batch independence.
+
+Every derivative is compared with central finite differences of ``jaximpact.reference``
+(rtol 1e-12, Richardson-checked), relative to the column's typical magnitude: the derivative
+of an output scaled to order one (cor_n, vt/speed, omega r/speed, angle in rad, contact time in
+units of the reference's own) with respect to an input scaled likewise (``x d/dx``; per radian
+for the angle, per speed/radius for the spin). Entries whose finite difference is itself
+uncertain (a regime switch inside the step) are not compared, and counted.
+"""
+
+import math
+import os
+import subprocess
+import sys
+import zlib
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaximpact as ji
+from jaximpact import reference as ref
+from jaximpact._sensitivity import INPUTS, OUTPUTS
+from jaximpact._tsit5 import LaneTsit5
+
+TOL = 1e-3  # the issue's target, relative to the column's typical magnitude
+
+
+def seed(name: str) -> int:
+    return zlib.crc32(name.encode())
+
+
+def random_scene(rng, moments):
+    """A scene with every parameter drawn at random (radius 9-45 um), and its reference twin."""
+    radius = rng.uniform(9e-6, 45e-6)
+    values = dict(
+        radius=radius,
+        density=rng.uniform(2000.0, 9000.0),
+        K=10 ** rng.uniform(10.3, 11.2),
+        f0=rng.uniform(20.0, 300.0) if moments != "none" else 0.0,
+        C_A=rng.uniform(0.2, 1.5),
+        C_H=rng.uniform(0.05, 0.5),
+        friction=rng.uniform(0.1, 0.6),
+        lam=rng.uniform(0.5e-9, 2e-9) if moments == "lambda" else 0.0,
+    )
+    adhesion = values["f0"] > 0
+    scene = ji.Scene(
+        particle=ji.Particle(radius=radius, density=values["density"]),
+        contact=ji.Contact(
+            K=values["K"], f0=values["f0"], C_A=values["C_A"], C_H=values["C_H"],
+            friction=values["friction"],
+        ),  # fmt: skip
+        model=ji.Model(adhesion=adhesion, rolling_moments=moments, lambda_=values["lam"]),
+    )
+    return scene, ref.Params(**values, adhesion=adhesion, rolling_moments=moments)
+
+
+def random_impacts(rng, params, n):
+    """Rebounding impacts, 0.3-5 m/s, -70..70 deg, with and without spin."""
+    speed = 10 ** rng.uniform(math.log10(0.5), math.log10(5.0), n)
+    angle = rng.uniform(-70.0, 70.0, n)
+    omega0 = rng.uniform(-0.5, 0.5, n) * speed / params.radius
+    omega0[1::2] = 0.0
+    return speed, angle, omega0
+
+
+def scaled_errors(jac, params, speed, angle, omega0, inputs):
+    """(worst scaled error, number of entries compared, number skipped) for one impact."""
+    exact, fd_error = ref.output_derivatives(params, speed, angle, omega0, inputs=inputs)
+    scale_in = {"angle_deg": 180.0 / math.pi, "omega0": speed / params.radius, "speed": speed}
+    scale_out = {"cor_n": 1.0, "vt_out": speed, "omega_out": speed / params.radius,
+                 "rebound_angle_deg": 180.0 / math.pi}  # fmt: skip
+    worst, compared, skipped = 0.0, 0, 0
+    for out in OUTPUTS:
+        cols = [c for c in inputs if c in exact[out]]
+        if out == "contact_time":
+            s_out = abs(exact["contact_time"]["K"] * params.K) if "K" in cols else None
+        s_out = s_out if out == "contact_time" and s_out else scale_out.get(out, 1.0)
+
+        def x(c):
+            if c in scale_in:
+                return scale_in[c]
+            return abs(params.lam if c == "lambda" else getattr(params, c))
+
+        want = {c: exact[out][c] * x(c) / s_out for c in cols}
+        typical = max(abs(v) for v in want.values())
+        for c in cols:
+            scale = max(abs(want[c]), 1e-2 * typical, 1e-12)
+            if fd_error[out][c] * x(c) / s_out > 0.1 * TOL * scale:
+                skipped += 1
+                continue
+            got = jac[out][inputs.index(c)] * x(c) / s_out
+            worst = max(worst, abs(got - want[c]) / scale)
+            compared += 1
+    return worst, compared, skipped
+
+
+def check_against_reference(moments, n_impacts, inputs, name, fast=False):
+    rng = np.random.default_rng(seed(name))
+    scene, params = random_scene(rng, moments)
+    speed, angle, omega0 = random_impacts(rng, params, n_impacts)
+    status = np.asarray(ji.simulate(scene, speed, angle, omega0).status)
+    keep = status == ji.Status.REBOUND
+    if fast:
+        keep[1:] = False
+    assert keep.sum() >= (1 if fast else n_impacts // 2), "the random impacts should rebound"
+    jac = ji.output_jacobian(scene, speed[keep], angle[keep], omega0[keep], inputs=inputs)
+    report = []
+    for i, (v, a, w) in enumerate(zip(speed[keep], angle[keep], omega0[keep], strict=True)):
+        row = {k: np.asarray(jac[k][i]) for k in OUTPUTS}
+        worst, compared, skipped = scaled_errors(row, params, v, a, w, inputs)
+        report.append((worst, v, a, w))
+        assert compared > skipped
+    assert max(r[0] for r in report) < TOL, report
+
+
+@pytest.mark.parametrize("moments", ["analytical", "none"])
+def test_derivatives_match_exact_reference_fast(moments):
+    """A fast subset: one spinning oblique impact, the parameters a fit identifies and the
+    impact inputs."""
+    inputs = ("f0", "C_A", "C_H", "friction", "speed", "omega0")
+    if moments == "none":
+        inputs = ("C_H", "friction", "K", "angle_deg", "omega0")
+    check_against_reference(moments, 2, inputs, f"fast-{moments}", fast=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("moments", ["analytical", "lambda", "none"])
+def test_derivatives_match_exact_reference_all_inputs(moments):
+    inputs = tuple(c for c in INPUTS if not (c == "lambda" and moments != "lambda"))
+    if moments == "none":
+        inputs = tuple(c for c in inputs if c not in ("f0", "C_A"))
+    check_against_reference(moments, 8, inputs, f"slow-{moments}")
+
+
+def test_normal_incidence_spin_derivative_is_exact():
+    """Normal impact without spin or rolling moments: the sphere rolls at once, so the exact
+    d omega_out / d omega0 is 2/7 (angular momentum about the contact point), d(vt_out)/d angle
+    is (5/7) speed pi/180 and d(omega_out)/d angle is (5/7) (speed/r) pi/180."""
+    r, speed = 20e-6, 1.0
+    scene = ji.Scene(
+        particle=ji.Particle(radius=r, density=2500.0),
+        contact=ji.Contact(K=5e10, f0=0.0, C_A=0.0, C_H=0.2, friction=0.4),
+        model=ji.Model(adhesion=False, rolling_moments="none"),
+    )
+    jac = ji.output_jacobian(scene, speed, 0.0, 0.0, inputs=("angle_deg", "omega0"))
+    d_angle = math.pi / 180.0
+    assert float(jac["omega_out"][0, 1]) == pytest.approx(2 / 7, rel=TOL)
+    assert float(jac["vt_out"][0, 0]) == pytest.approx(5 / 7 * speed * d_angle, rel=TOL)
+    assert float(jac["omega_out"][0, 0]) == pytest.approx(5 / 7 * speed / r * d_angle, rel=TOL)
+
+
+def test_batch_does_not_change_a_lane(table1):
+    """Outputs bitwise and derivatives to 1e-12: alone, in a batch, in a shuffled batch."""
+    speed = np.array([1.5, 1.0, 0.3, 5.0, 0.05, 2.0, 0.7])
+    angle = np.array([0.0, 30.0, -50.0, 70.0, 10.0, 0.0, -20.0])
+    omega0 = np.array([12000.0, 0.0, 3000.0, -20000.0, 0.0, 0.0, 5e4])
+    batch = ji.simulate(table1, speed, angle, omega0)
+    perm = np.random.default_rng(seed("shuffle")).permutation(len(speed))
+    shuffled = ji.simulate(table1, speed[perm], angle[perm], omega0[perm])
+    inputs = ("C_H", "speed")
+    jac = ji.output_jacobian(table1, speed, angle, omega0, inputs=inputs)
+    for i in range(len(speed)):
+        alone = ji.simulate(table1, speed[i], angle[i], omega0[i])
+        j = int(np.flatnonzero(perm == i)[0])
+        for k in ("cor_n", "vt_out", "omega_out", "contact_time", "steps"):
+            a, b, c = (np.asarray(getattr(x, k)) for x in (alone, batch, shuffled))
+            np.testing.assert_array_equal(a, b[i], err_msg=f"{k}, impact {i}")
+            np.testing.assert_array_equal(c[j], b[i], err_msg=f"{k}, impact {i} shuffled")
+    jac_alone = ji.output_jacobian(table1, speed[0], angle[0], omega0[0], inputs=inputs)
+    for k in OUTPUTS:
+        np.testing.assert_allclose(jac_alone[k][0], jac[k][0], rtol=1e-12, atol=0, err_msg=k)
+
+
+def test_sharded_batch_equals_single_device(tmp_path):
+    """Split over two host devices, each lane gives the same bits as on one device."""
+    script = tmp_path / "shard.py"
+    script.write_text(
+        "import jax, numpy as np\n"
+        "jax.config.update('jax_enable_x64', True)\n"
+        "import jaximpact as ji\n"
+        "assert len(jax.local_devices()) == 2\n"
+        "s = ji.table1_scene()\n"
+        "v = np.linspace(0.3, 4.0, 6); a = np.linspace(-60, 60, 6); w = np.linspace(-1e4, 1e4, 6)\n"
+        "r = ji.simulate(s, v, a, w)\n"
+        "np.save(%r, np.stack([np.asarray(r.cor_n), np.asarray(r.omega_out)]))\n"
+        % str(tmp_path / "out.npy")
+    )
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    subprocess.run([sys.executable, str(script)], check=True, env=env, timeout=600)
+    sharded = np.load(tmp_path / "out.npy")
+    s = ji.table1_scene()
+    v, a, w = np.linspace(0.3, 4.0, 6), np.linspace(-60, 60, 6), np.linspace(-1e4, 1e4, 6)
+    one = ji.simulate(s, v, a, w)
+    np.testing.assert_array_equal(sharded, np.stack([np.asarray(one.cor_n), np.asarray(one.omega_out)]))
+
+
+def test_grad_jacfwd_jacrev_agree(table1):
+    speed, angle, omega0 = np.array([1.2, 0.8]), np.array([25.0, -40.0]), np.array([0.0, 8000.0])
+    inputs = ("f0", "C_H", "friction", "angle_deg")
+    fwd = ji.output_jacobian(table1, speed, angle, omega0, inputs=inputs, mode="fwd")
+    rev = ji.output_jacobian(table1, speed, angle, omega0, inputs=inputs, mode="rev")
+
+    def cor_of_f0(f0):
+        scene = table1.replace(contact={"f0": f0})
+        return ji.simulate(scene, speed[0], angle[0], omega0[0]).cor_n
+
+    g = jax.grad(cor_of_f0)(jnp.asarray(float(table1.contact.f0)))
+    for k in OUTPUTS:
+        np.testing.assert_allclose(fwd[k], rev[k], rtol=1e-9, atol=1e-12 * float(np.abs(fwd[k]).max()), err_msg=k)
+    assert float(g) == pytest.approx(float(fwd["cor_n"][0, 0]), rel=1e-9)
+
+
+def test_ledger_closes_without_rotation(table1):
+    """With rotation off the initial spin is ignored, and so is its energy (issue 10)."""
+    scene = table1.replace(model={"rotation": False})
+    res = ji.simulate(scene, np.array([1.0, 2.0]), np.array([30.0, 0.0]), np.array([2e4, -5e4]))
+    losses = sum(
+        np.asarray(getattr(res, k))
+        for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
+    )
+    gap = (np.asarray(res.energy_in) - np.asarray(res.energy_out) - losses) / np.asarray(res.energy_in)
+    assert np.all(np.abs(gap) < 1e-6), gap
+
+
+def test_lane_tsit5_is_tsit5():
+    """The batch-independent solver takes the same step and gives the same dense output as
+    diffrax.Tsit5 (to rounding), on a nonlinear ODE."""
+    term = diffrax.ODETerm(lambda t, y, args: {"a": -y["a"] * y["b"], "b": jnp.sin(t) + y["a"]})
+    y0 = {"a": jnp.asarray(1.3), "b": jnp.asarray(-0.4)}
+    t0, t1 = 0.2, 0.5
+    mine, theirs = LaneTsit5(), diffrax.Tsit5()
+    y1, err1, dense1, _, _ = mine.step(term, t0, t1, y0, None, mine.init(term, t0, t1, y0, None), False)
+    y2, err2, dense2, _, _ = theirs.step(term, t0, t1, y0, None, theirs.init(term, t0, t1, y0, None), False)
+    interp1 = mine.interpolation_cls(t0=t0, t1=t1, **dense1)
+    interp2 = theirs.interpolation_cls(t0=t0, t1=t1, **dense2)
+    for k in y0:
+        assert float(y1[k]) == pytest.approx(float(y2[k]), rel=1e-14, abs=1e-15)
+        assert float(err1[k]) == pytest.approx(float(err2[k]), rel=1e-9, abs=1e-17)
+        for t in np.linspace(t0, t1, 7):
+            a, b = interp1.evaluate(t)[k], interp2.evaluate(t)[k]
+            assert float(a) == pytest.approx(float(b), rel=1e-13, abs=1e-15)
