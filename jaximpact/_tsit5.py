@@ -66,7 +66,7 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
         if t1 is not None:
             return jtu.tree_map(lambda a, b: b - a, self.evaluate(t0), self.evaluate(t1))
         h = self.t1 - self.t0
-        theta = (t0 - self.t0) / h
+        theta = jnp.asarray((t0 - self.t0) / h)  # an array: no weight is skipped as a zero
         # Horner in theta for each b_i(theta), then the sum over stages in a fixed order.
         weights = [theta * (r1 + theta * (r2 + theta * (r3 + theta * r4))) for r1, r2, r3, r4 in _DENSE]
         y0, unravel = ravel_pytree(self.y0)
