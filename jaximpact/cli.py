@@ -181,146 +181,6 @@ def _simulate_from_cache(scene, table):
     return ImpactResult(**dict(zip(fields, out, strict=True)))
 
 
-# --- jaximpact sweep (issue 6): the engine is jaximpact/sweep.py ------------------------------
-
-SWEEP_EPILOG = """\
-impacts: --impacts FILE (.csv, or Parquet with the same columns), or a grid:
-  one --grid per axis; the cartesian product, the last axis varying fastest:
-    NAME=VALUE               one value              omega0=0
-    NAME=V1,V2,...           a list                 angle_deg=-40,0,40
-    NAME=START:STOP:NUM      NUM values, linear     angle_deg=-60:60:25  (ends included)
-    NAME=START:STOP:NUM:log  NUM values, geometric  speed=0.1:5:50:log
-  NAME: speed, angle_deg, omega0 (default: the scene's [impact]) or a scene parameter
-  (radius, density, K, f0, C_A, C_H, friction, lambda).
-
-output: a directory RESULTS.parquet/ of part-NNNNNN.parquet files (the results-CSV columns)
-  and manifest-PPPPP.json files (settings hash, completed chunks); read it with
-  jaximpact.sweep.read_sweep(path) or any Parquet reader.
-
-resume: run the same command again; finished chunks are kept. Other settings (scene, impacts,
-  chunk size, precision) are refused unless --restart.
-
-devices: each chunk is split over all local JAX devices (GPUs; on CPU force several with
-  XLA_FLAGS=--xla_force_host_platform_device_count=N). --distributed: one process per host,
-  each taking chunks i with i % process_count == process_index.
-
-example:
-  jaximpact sweep --grid speed=0.1:5:50:log --grid angle_deg=-60:60:25 --grid f0=100:400:4 \\
-      -o sweep.parquet
-"""
-
-
-def cmd_sweep(args) -> int:
-    import os
-
-    import jax
-
-    if args.precision == "float64":
-        jax.config.update("jax_enable_x64", True)
-    from . import load_scene
-    from .sweep import GridSource, parse_grid, read_impacts_file, run_sweep
-
-    # Inputs first (numpy only): a typo should fail before any distributed rendezvous.
-    source = read_impacts_file(args.impacts) if args.impacts else None
-    axes = None if args.impacts else parse_grid(args.grid)
-    if args.distributed and not jax.distributed.is_initialized():
-        # jax.distributed.initialize must run before a JAX backend starts, and importing
-        # jaximpact already starts one (the scene defaults are arrays). So start this command
-        # again in a fresh interpreter that initializes first, then imports jaximpact; None
-        # values let JAX detect the cluster (SLURM, Open MPI, Kubernetes, ...).
-        init = {
-            "coordinator_address": args.coordinator,
-            "num_processes": args.num_processes,
-            "process_id": args.process_id,
-        }
-        boot = (
-            f"import sys, jax; jax.distributed.initialize(**{init!r}); "
-            "from jaximpact.cli import main; sys.exit(main(sys.argv[1:]))"
-        )
-        sys.stdout.flush()
-        os.execv(sys.executable, [sys.executable, "-c", boot, *sys.argv[1:]])
-    if source is None:
-        impact = load_scene(args.scene).impact
-        defaults = {k: float(getattr(impact, k)) for k in ("speed", "angle_deg", "omega0")}
-        source = GridSource(axes, defaults)
-    summary = run_sweep(
-        source,
-        args.output,
-        scene_path=args.scene,
-        chunk_size=args.chunk_size,
-        restart=args.restart,
-        progress=not args.no_progress,
-    )
-    rate = summary.impacts_run / summary.seconds if summary.seconds else 0.0
-    print(
-        f"sweep {summary.output}: {summary.n_impacts} impacts in {summary.n_chunks} chunks of "
-        f"{summary.chunk_size} on {summary.devices} device(s); this run: {summary.chunks_run} "
-        f"chunk(s), {summary.impacts_run} impacts in {summary.seconds:.1f} s ({rate:.0f}/s), "
-        f"{summary.chunks_skipped} already done; "
-        + ("complete" if summary.complete else "incomplete (other processes' chunks pending)")
-    )
-    if summary.failed:
-        print(f"warning: {summary.failed} impact(s) failed; see the status column", file=sys.stderr)
-    return 0
-
-
-def add_sweep_command(sub) -> None:
-    """Register ``jaximpact sweep`` on the subcommand parsers ``sub``."""
-    import os
-
-    from .sweep import DEFAULT_CHUNK_SIZE
-
-    env_int = lambda name: int(os.environ[name]) if os.environ.get(name) else None  # noqa: E731
-    sw = sub.add_parser(
-        "sweep",
-        help="large sweeps: chunked, streamed to Parquet, resumable, multi-device",
-        description="Simulate many impacts (a file or a grid) in fixed-size chunks, writing "
-        "each finished chunk to a Parquet dataset; resumable and sharded over devices.",
-        epilog=SWEEP_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    sw.add_argument("scene", nargs="?", help="scene file (TOML); default: embedded Table 1")
-    what = sw.add_mutually_exclusive_group(required=True)
-    what.add_argument("--impacts", help="impacts file: CSV or Parquet (columns as the CSV)")
-    what.add_argument(
-        "--grid", action="append", metavar="NAME=SPEC", help="a grid axis (repeat; see below)"
-    )
-    sw.add_argument("-o", "--output", required=True, help="output directory (RESULTS.parquet)")
-    sw.add_argument(
-        "--chunk-size",
-        type=int,
-        default=DEFAULT_CHUNK_SIZE,
-        help=f"impacts per chunk, a multiple of the local device count "
-        f"(default {DEFAULT_CHUNK_SIZE}); memory grows with it",
-    )
-    sw.add_argument("--precision", choices=("float64", "float32"), default="float64")
-    sw.add_argument("--restart", action="store_true", help="discard existing results in the output")
-    sw.add_argument("--no-progress", action="store_true", help="no progress bar")
-    sw.add_argument(
-        "--distributed",
-        action="store_true",
-        help="initialize jax.distributed; each process takes every process_count-th chunk",
-    )
-    sw.add_argument(
-        "--coordinator",
-        default=os.environ.get("JAX_COORDINATOR_ADDRESS"),
-        help="host:port of process 0 (default $JAX_COORDINATOR_ADDRESS, else auto-detected)",
-    )
-    sw.add_argument(
-        "--num-processes",
-        type=int,
-        default=env_int("JAX_NUM_PROCESSES"),
-        help="(default $JAX_NUM_PROCESSES, else auto-detected)",
-    )
-    sw.add_argument(
-        "--process-id",
-        type=int,
-        default=env_int("JAX_PROCESS_ID"),
-        help="(default $JAX_PROCESS_ID, else auto-detected)",
-    )
-    sw.set_defaults(func=cmd_sweep)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaximpact", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -340,6 +200,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("-o", "--output", help="write the results CSV here (atomically)")
     sim.add_argument("--precision", choices=("float64", "float32"), default="float64")
     sim.set_defaults(func=cmd_simulate)
+    from ._sweep_cli import add_sweep_command
+
     add_sweep_command(sub)
     try:
         from fitting.cli import add_fit_command
