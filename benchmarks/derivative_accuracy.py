@@ -62,7 +62,10 @@ def main():
     print("| rtol | slip_width | max error | median error | > 1e-3 | median steps | jacfwd s |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r[0]:.0e} | {r[1]:.0e} | {r[2]:.1e} | {r[3]:.1e} | {r[4]} of {r[5]} | {r[6]:.0f} | {r[7]:.1f} |")
+        print(
+            f"| {r[0]:.0e} | {r[1]:.0e} | {r[2]:.1e} | {r[3]:.1e} | {r[4]} of {r[5]} "
+            f"| {r[6]:.0f} | {r[7]:.1f} |"
+        )
 
 
 if __name__ == "__main__":

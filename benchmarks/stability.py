@@ -17,7 +17,7 @@ from _common import as_dict, fmt, max_error, output_errors, reference_rows, tabl
 
 import jaximpact as ji
 from jaximpact import reference as ref
-from jaximpact._simulate import _integration, scene_parameters
+from jaximpact._simulate import integration_settings, scene_parameters
 
 DEG = math.pi / 180.0
 W_PAPER = 1e6 * DEG  # rad/s
@@ -238,7 +238,7 @@ def run_case(case):
         scene = case.scene()
         dtype = jax.numpy.result_type(float)
         params = {k: np.atleast_1d(np.asarray(v)) for k, v in scene_parameters(scene).items()}
-        picked = _integration(
+        picked = integration_settings(
             scene, params, np.atleast_1d(case.speed), np.atleast_1d(case.angle), dtype, case.method
         ).method
         call = lambda: jax.block_until_ready(  # noqa: E731

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaximpact
-from jaximpact._simulate import scene_parameters, stiffness_estimate
+from jaximpact import scene_parameters, stiffness_estimate
 
 from ._data import OBSERVABLES, Observations, load_observations
 

@@ -18,6 +18,11 @@ from ._scene_io import default_scene_path as default_scene_path
 from ._scene_io import load_scene as load_scene
 from ._scene_io import scene_from_dict as scene_from_dict
 from ._sensitivity import output_jacobian as output_jacobian
+from ._simulate import Integration as Integration
+from ._simulate import integration_settings as integration_settings
+from ._simulate import required_terms as required_terms
+from ._simulate import scene_parameters as scene_parameters
 from ._simulate import simulate as simulate
+from ._simulate import stiffness_estimate as stiffness_estimate
 
 __version__ = "0.1.0"

@@ -26,7 +26,8 @@ def use_all_cpu_cores(count: int | None = None) -> int:
             "(set XLA_FLAGS=--xla_force_host_platform_device_count=N in the environment instead)"
         )
     count = count or len(os.sched_getaffinity(0))
-    flags = re.sub(r"--xla_force_host_platform_device_count=\d+", "",
-                   os.environ.get("XLA_FLAGS", ""))
+    flags = re.sub(
+        r"--xla_force_host_platform_device_count=\d+", "", os.environ.get("XLA_FLAGS", "")
+    )
     os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={count}".strip()
     return count

@@ -42,18 +42,23 @@ def output_jacobian(scene: Scene, speed, angle_deg, omega0=0.0, inputs=INPUTS, m
     arithmetic), so one Jacobian of the batch sum gives every impact's row.
     """
     speed, angle_deg, omega0 = jnp.broadcast_arrays(
-        *(jnp.atleast_1d(jnp.asarray(x, jnp.result_type(float))) for x in (speed, angle_deg, omega0))
+        *(
+            jnp.atleast_1d(jnp.asarray(x, jnp.result_type(float)))
+            for x in (speed, angle_deg, omega0)
+        )
     )
     size = speed.shape[0]
     current = {
         "speed": speed, "angle_deg": angle_deg, "omega0": omega0,
         **{k: getattr(getattr(scene, s), f) for k, (s, f) in _SECTIONS.items()},
     }  # fmt: skip
-    x0 = jnp.stack([jnp.broadcast_to(jnp.asarray(current[k], speed.dtype), (size,)) for k in inputs])
+    x0 = jnp.stack(
+        [jnp.broadcast_to(jnp.asarray(current[k], speed.dtype), (size,)) for k in inputs]
+    )
     adjoint = diffrax.ForwardMode() if mode == "fwd" else None
 
     def outputs(x):
-        values = dict(zip(inputs, x))
+        values = dict(zip(inputs, x, strict=True))
         impact = {k: values.pop(k, current[k]) for k in ("speed", "angle_deg", "omega0")}
         res = simulate(_with_values(scene, values), **impact, adjoint=adjoint)
         return {k: getattr(res, k) for k in OUTPUTS}

@@ -13,7 +13,8 @@ from ._scene import INERTIA_FACTOR, Scene, SceneError, _is_concrete, check_impac
 from ._solvers import (
     CONTACT_FLOOR,
     SLIP_RELAXATION,
-    default_slip_width, default_tolerances,
+    default_slip_width,
+    default_tolerances,
     make_controller,
     make_solver,
 )
@@ -372,7 +373,7 @@ def simulate(
     speed, angle_deg, omega0 = flat(speed), flat(angle_deg), flat(omega0)
 
     terms = required_terms(scene, params, angle_deg, omega0)
-    cfg = _integration(scene, params, speed, angle_deg, dtype, method)
+    cfg = integration_settings(scene, params, speed, angle_deg, dtype, method)
     inputs = (params, speed, angle_deg, omega0)
     if size == 1:
         # XLA simplifies a batch of one differently (measured: the last bit of the Hertz
@@ -400,7 +401,12 @@ def _shard_over_devices(inputs, size):
     )
 
 
-def _integration(scene, params, speed, angle_deg, dtype, method) -> Integration:
+def integration_settings(scene, params, speed, angle_deg, dtype, method=None) -> Integration:
+    """The solver ``simulate`` runs for these impacts: method (``auto`` resolved), tolerances.
+
+    ``params`` as :func:`scene_parameters` gives them (arrays or scalars), ``speed`` and
+    ``angle_deg`` the impacts, ``dtype`` the float type; ``method`` overrides the scene's.
+    """
     s = scene.solver
     method = method or s.method
     rtol, atol = default_tolerances(dtype, s.rtol, s.atol)

@@ -42,7 +42,7 @@ def _combine(weights, ks):
 
     Zero weights are skipped (they are exact zeros of the tableau, known in Python)."""
     acc = None
-    for c, k in zip(weights, ks):
+    for c, k in zip(weights, ks, strict=True):
         if isinstance(c, float) and c == 0.0:
             continue
         acc = c * k if acc is None else acc + c * k
@@ -68,7 +68,9 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
         h = self.t1 - self.t0
         theta = jnp.asarray((t0 - self.t0) / h)  # an array: no weight is skipped as a zero
         # Horner in theta for each b_i(theta), then the sum over stages in a fixed order.
-        weights = [theta * (r1 + theta * (r2 + theta * (r3 + theta * r4))) for r1, r2, r3, r4 in _DENSE]
+        weights = [
+            theta * (r1 + theta * (r2 + theta * (r3 + theta * r4))) for r1, r2, r3, r4 in _DENSE
+        ]
         y0, unravel = ravel_pytree(self.y0)
         return unravel(y0 + h * _combine(weights, [self.k[i] for i in range(7)]))
 
@@ -98,7 +100,7 @@ class LaneTsit5(diffrax.AbstractAdaptiveSolver):
         h = t1 - t0
         flat0, unravel = ravel_pytree(y0)
         ks = [solver_state]
-        for c, a_row in zip(_TABLEAU.c, _TABLEAU.a_lower):
+        for c, a_row in zip(_TABLEAU.c, _TABLEAU.a_lower, strict=True):
             stage = flat0 + h * _combine([float(a) for a in a_row], ks)
             ks.append(ravel_pytree(terms.vf(t0 + float(c) * h, unravel(stage), args))[0])
         # Tsit5's last stage is evaluated at y1 itself (its a-row is b_sol).

@@ -135,7 +135,7 @@ def _simulate_from_cache(scene, table):
 
     from ._cache import cached_program
     from ._results import ImpactResult
-    from ._simulate import _integration, scene_parameters
+    from ._simulate import integration_settings, scene_parameters
 
     n = table.speed.size
     if not jax.config.jax_compilation_cache_dir or not 1 <= n <= CACHED_SIMULATE_MAX:
@@ -161,7 +161,7 @@ def _simulate_from_cache(scene, table):
             and np.all(values["C_H"] == 0)
         ):
             return None
-        method = _integration(scene, values, speed, angle, dtype, None).method
+        method = integration_settings(scene, values, speed, angle, dtype, None).method
         names = tuple(values)
         fields = tuple(ImpactResult.__dataclass_fields__)
 

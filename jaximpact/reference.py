@@ -783,14 +783,20 @@ def output_derivatives(
         x = dict(x0, **{name: value})
         q = replace(
             p,
-            **{("lam" if k == "lambda" else k): x[k] for k in x0 if k not in ("speed", "angle_deg", "omega0")},
+            **{
+                ("lam" if k == "lambda" else k): x[k]
+                for k in x0
+                if k not in ("speed", "angle_deg", "omega0")
+            },
         )
         res = simulate_impact(q, x["speed"], x["angle_deg"], x["omega0"], **options)
         if res.status == "failed":  # a rare stall at a switch: a second try at another rtol
             retry = dict(options, rtol=0.5 * options.get("rtol", 1e-12))
             res = simulate_impact(q, x["speed"], x["angle_deg"], x["omega0"], **retry)
         if res.status != "rebound":
-            raise RuntimeError(f"{name} = {value!r}: the reference did not rebound ({res.status}: {res.message})")
+            raise RuntimeError(
+                f"{name} = {value!r}: the reference did not rebound ({res.status}: {res.message})"
+            )
         return _outputs(res, x["speed"], x["angle_deg"])
 
     steps = {"angle_deg": rel_step * 180.0 / math.pi, "omega0": rel_step * speed / p.radius}

@@ -526,7 +526,12 @@ def _model_config(scene, source, chunk_size: int, dtype):
     terms from all values each input takes; with ``method = "auto"``, Kvaerno5 if the stiffness
     estimate of any impact exceeds the limit (computed chunk by chunk to bound memory).
     """
-    from ._simulate import _integration, required_terms, scene_parameters, stiffness_estimate
+    from ._simulate import (
+        integration_settings,
+        required_terms,
+        scene_parameters,
+        stiffness_estimate,
+    )
 
     base = {k: float(v) for k, v in scene_parameters(scene).items()}
     sets = source.value_sets()
@@ -543,7 +548,7 @@ def _model_config(scene, source, chunk_size: int, dtype):
             stiffness = max(stiffness, float(estimate))
         method = "kvaerno5" if stiffness > scene.solver.stiffness_limit else "tsit5"
     one = {k: np.ones(1) for k in base}
-    cfg = _integration(scene, one, np.ones(1), np.zeros(1), dtype, method)
+    cfg = integration_settings(scene, one, np.ones(1), np.zeros(1), dtype, method)
     return base, terms, cfg
 
 

@@ -13,6 +13,7 @@ def table1():
 
     return jaximpact.table1_scene()
 
+
 # The CLI turns JAX's persistent compilation cache on (user cache directory) unless told
 # otherwise: tests that call it in-process must not write there nor change this process's JAX
 # configuration. Tests of the cache pass their own JAXIMPACT_CACHE_DIR.

@@ -49,7 +49,10 @@ def random_scene(rng, moments):
     scene = ji.Scene(
         particle=ji.Particle(radius=radius, density=values["density"]),
         contact=ji.Contact(
-            K=values["K"], f0=values["f0"], C_A=values["C_A"], C_H=values["C_H"],
+            K=values["K"],
+            f0=values["f0"],
+            C_A=values["C_A"],
+            C_H=values["C_H"],
             friction=values["friction"],
         ),  # fmt: skip
         model=ji.Model(adhesion=adhesion, rolling_moments=moments, lambda_=values["lam"]),
@@ -188,8 +191,8 @@ def test_sharded_batch_equals_single_device(tmp_path):
         "s = ji.table1_scene()\n"
         "v = np.linspace(0.3, 4.0, 6); a = np.linspace(-60, 60, 6); w = np.linspace(-1e4, 1e4, 6)\n"
         "r = ji.simulate(s, v, a, w)\n"
-        "np.save(%r, np.stack([np.asarray(r.cor_n), np.asarray(r.omega_out)]))\n"
-        % str(tmp_path / "out.npy")
+        f"np.save({str(tmp_path / 'out.npy')!r}, "
+        "np.stack([np.asarray(r.cor_n), np.asarray(r.omega_out)]))\n"
     )
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     subprocess.run([sys.executable, str(script)], check=True, env=env, timeout=600)
@@ -197,7 +200,9 @@ def test_sharded_batch_equals_single_device(tmp_path):
     s = ji.table1_scene()
     v, a, w = np.linspace(0.3, 4.0, 6), np.linspace(-60, 60, 6), np.linspace(-1e4, 1e4, 6)
     one = ji.simulate(s, v, a, w)
-    np.testing.assert_array_equal(sharded, np.stack([np.asarray(one.cor_n), np.asarray(one.omega_out)]))
+    np.testing.assert_array_equal(
+        sharded, np.stack([np.asarray(one.cor_n), np.asarray(one.omega_out)])
+    )
 
 
 def test_grad_jacfwd_jacrev_agree(table1):
@@ -212,7 +217,9 @@ def test_grad_jacfwd_jacrev_agree(table1):
 
     g = jax.grad(cor_of_f0)(jnp.asarray(float(table1.contact.f0)))
     for k in OUTPUTS:
-        np.testing.assert_allclose(fwd[k], rev[k], rtol=1e-9, atol=1e-12 * float(np.abs(fwd[k]).max()), err_msg=k)
+        np.testing.assert_allclose(
+            fwd[k], rev[k], rtol=1e-9, atol=1e-12 * float(np.abs(fwd[k]).max()), err_msg=k
+        )
     assert float(g) == pytest.approx(float(fwd["cor_n"][0, 0]), rel=1e-9)
 
 
@@ -224,7 +231,9 @@ def test_ledger_closes_without_rotation(table1):
         np.asarray(getattr(res, k))
         for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
     )
-    gap = (np.asarray(res.energy_in) - np.asarray(res.energy_out) - losses) / np.asarray(res.energy_in)
+    gap = (np.asarray(res.energy_in) - np.asarray(res.energy_out) - losses) / np.asarray(
+        res.energy_in
+    )
     assert np.all(np.abs(gap) < 1e-6), gap
 
 
@@ -235,8 +244,12 @@ def test_lane_tsit5_is_tsit5():
     y0 = {"a": jnp.asarray(1.3), "b": jnp.asarray(-0.4)}
     t0, t1 = 0.2, 0.5
     mine, theirs = LaneTsit5(), diffrax.Tsit5()
-    y1, err1, dense1, _, _ = mine.step(term, t0, t1, y0, None, mine.init(term, t0, t1, y0, None), False)
-    y2, err2, dense2, _, _ = theirs.step(term, t0, t1, y0, None, theirs.init(term, t0, t1, y0, None), False)
+    y1, err1, dense1, _, _ = mine.step(
+        term, t0, t1, y0, None, mine.init(term, t0, t1, y0, None), False
+    )
+    y2, err2, dense2, _, _ = theirs.step(
+        term, t0, t1, y0, None, theirs.init(term, t0, t1, y0, None), False
+    )
     interp1 = mine.interpolation_cls(t0=t0, t1=t1, **dense1)
     interp2 = theirs.interpolation_cls(t0=t0, t1=t1, **dense2)
     for k in y0:
