@@ -4,7 +4,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .tables import RESULT_COLUMNS
+from .tables import RESULT_COLUMNS, TEXT_RESULT_COLUMNS
 
 
 class Status:
@@ -24,7 +24,8 @@ class Status:
         return {0: "rebound", 1: "captured"}.get(int(code), "failed")
 
 
-OUTPUT_FIELDS = RESULT_COLUMNS[1:]  # the results-CSV columns after "status"
+# The numeric results-CSV columns, each a field of ImpactResult.
+OUTPUT_FIELDS = tuple(c for c in RESULT_COLUMNS if c not in TEXT_RESULT_COLUMNS)
 
 
 class ImpactResult(eqx.Module):
@@ -66,6 +67,13 @@ class ImpactResult(eqx.Module):
         return np.vectorize(lambda c: Status.NAMES[int(c)], otypes=[object])(codes)
 
     @property
+    def failure_reasons(self) -> np.ndarray:
+        """Why each impact failed (``max_steps``, ``nonfinite``, ``solver_error``), else ``""``."""
+        codes = np.asarray(self.status)
+        name = lambda c: Status.NAMES[int(c)] if c >= Status.MAX_STEPS else ""  # noqa: E731
+        return np.vectorize(name, otypes=[object])(codes)
+
+    @property
     def failed(self):
         return self.status >= Status.MAX_STEPS
 
@@ -74,4 +82,5 @@ class ImpactResult(eqx.Module):
         out = {"status": np.vectorize(Status.csv_name, otypes=[object])(np.asarray(self.status))}
         for name in OUTPUT_FIELDS:
             out[name] = np.asarray(getattr(self, name), dtype=float)
+        out["failure_reason"] = self.failure_reasons
         return out

@@ -36,6 +36,9 @@ __all__ = [
     "IMPACT_PARAMETER_COLUMNS",
     "RESULT_COLUMNS",
     "RESULT_STATUSES",
+    "COLUMN_UNITS",
+    "FAILURE_REASONS",
+    "TEXT_RESULT_COLUMNS",
     "CsvRows",
     "ImpactTable",
     "TableError",
@@ -76,7 +79,52 @@ RESULT_COLUMNS = (
     "loss_adhesion_damping",
     "loss_friction",
     "loss_rolling",
+    "failure_reason",
 )
+
+#: Result columns that hold text; the others are numbers (NaN, an empty field, where they do
+#: not apply). ``failure_reason`` is empty unless ``status`` is ``failed``, then one of
+#: :data:`FAILURE_REASONS`.
+TEXT_RESULT_COLUMNS = ("status", "failure_reason")
+
+#: Why an impact failed (the ``failure_reason`` column; ``jaximpact.Status`` names them too).
+FAILURE_REASONS = {
+    "max_steps": "the solver's step limit was reached",
+    "nonfinite": "the state became NaN or infinite",
+    "solver_error": "the solver failed",
+}
+
+#: SI units of every impacts- and results-file column (CSV headers keep the bare names).
+COLUMN_UNITS = {
+    "speed": "m/s",
+    "angle_deg": "deg",
+    "omega0": "rad/s",
+    "radius": "m",
+    "density": "kg/m^3",
+    "K": "N/m^2",
+    "f0": "N/m",
+    "C_A": "s/m",
+    "C_H": "s/m",
+    "friction": "1",
+    "lambda": "N m",
+    "status": "",
+    "vn_out": "m/s",
+    "vt_out": "m/s",
+    "omega_out": "rad/s",
+    "cor_n": "1",
+    "cor_t": "1",
+    "rebound_angle_deg": "deg",
+    "contact_time": "s",
+    "roll_time": "s",
+    "max_overlap": "m",
+    "energy_in": "J",
+    "energy_out": "J",
+    "loss_hertz_damping": "J",
+    "loss_adhesion_damping": "J",
+    "loss_friction": "J",
+    "loss_rolling": "J",
+    "failure_reason": "",
+}
 
 #: The statuses the conventions define for a simulated impact.
 RESULT_STATUSES = ("rebound", "captured", "failed")
@@ -574,8 +622,16 @@ def write_results(
         if not s or s != s.strip() or s.startswith("#") or not s.isprintable():
             raise located_error(TableError, path, None, "status", f"row {i}: invalid status {s!r}")
     table["status"] = status
+    reasons = [str(s) for s in np.asarray(results["failure_reason"], dtype=object).ravel()]
+    for i, s in enumerate(reasons):
+        if s and s not in FAILURE_REASONS:
+            raise located_error(
+                TableError, path, None, "failure_reason", f"row {i}: invalid reason {s!r}"
+            )
     for name in RESULT_COLUMNS[1:]:
-        table[name] = _numeric_column(name, results[name], path)
+        if name not in TEXT_RESULT_COLUMNS:
+            table[name] = _numeric_column(name, results[name], path)
+    table["failure_reason"] = reasons
     lengths = {name: len(v) for name, v in table.items()}
     if len(set(lengths.values())) != 1:
         raise located_error(TableError, path, None, None, f"columns differ in length: {lengths}")
@@ -607,8 +663,10 @@ def read_results(path) -> dict[str, np.ndarray]:
         OSError: the file cannot be read.
     """
     table = read_csv_rows(path)
-    n_inputs = len(table.header) - len(RESULT_COLUMNS)
-    if n_inputs < 0 or table.header[n_inputs:] != RESULT_COLUMNS:
+    # Files written before failure_reason existed end with loss_rolling: still readable.
+    expected = RESULT_COLUMNS if table.header[-1:] == ("failure_reason",) else RESULT_COLUMNS[:-1]
+    n_inputs = len(table.header) - len(expected)
+    if n_inputs < 0 or table.header[n_inputs:] != expected:
         raise located_error(
             TableError,
             path,
@@ -619,7 +677,7 @@ def read_results(path) -> dict[str, np.ndarray]:
     columns: dict[str, np.ndarray] = {}
     for j, name in enumerate(table.header):
         texts = [fields[j] for _, fields in table.rows]
-        if name == "status":
+        if name in TEXT_RESULT_COLUMNS:
             columns[name] = np.array(texts, dtype=str)
             continue
         values = []
