@@ -8,7 +8,8 @@ __all__ = ["kharaz2001_scene"]
 
 
 def kharaz2001_scene(friction: float = 0.1) -> jaximpact.Scene:
-    """A scene for the Kharaz (2001) experiments: 5 mm alumina spheres on a thick glass anvil.
+    """The embedded ``kharaz2001`` scene (5 mm alumina spheres on a thick glass anvil) with
+    the given friction coefficient.
 
     As in the Chung & Ooi (2011) DEM benchmark, the anvil is taken as rigid, so
     ``K = 4/3 E*`` with ``1/E* = (1 - nu^2)/E`` of the sphere alone (E = 380 GPa, nu = 0.23):
@@ -22,12 +23,5 @@ def kharaz2001_scene(friction: float = 0.1) -> jaximpact.Scene:
     Returns:
         jaximpact.Scene: the scene, default impact 3.9 m/s at 45 degrees, no spin.
     """
-    E, nu = 380e9, 0.23
-    return jaximpact.Scene(
-        particle=jaximpact.Particle(radius=2.5e-3, density=4000.0),
-        contact=jaximpact.Contact(
-            K=4.0 / 3.0 * E / (1.0 - nu**2), f0=0.0, C_A=0.0, C_H=0.008, friction=friction
-        ),
-        model=jaximpact.Model(rotation=True, adhesion=False, rolling_moments="none"),
-        impact=jaximpact.Impact(speed=3.9, angle_deg=45.0, omega0=0.0),
-    )
+    # One source of truth: the embedded scene file jaximpact/scenes/kharaz2001.toml.
+    return jaximpact.load_scene("kharaz2001").replace(contact={"friction": friction})

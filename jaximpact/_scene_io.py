@@ -50,23 +50,68 @@ ALLOWED = {
 REQUIRED_SECTIONS = ("particle", "contact")
 
 
+def embedded_scenes() -> dict[str, str]:
+    """The scenes shipped with jaximpact: ``{name: first line of the file's description}``."""
+    folder = resources.files("jaximpact") / "scenes"
+    out = {}
+    for entry in sorted(folder.iterdir(), key=lambda e: e.name):
+        if entry.name.endswith(".toml"):
+            first = entry.read_text(encoding="utf-8").splitlines()[0]
+            out[entry.name[: -len(".toml")]] = first.lstrip("#").strip()
+    return out
+
+
 def default_scene_path() -> Path:
     """Path of the embedded default scene (the paper's Table 1)."""
-    return Path(str(resources.files("jaximpact") / "scenes" / "table1.toml"))
+    return scene_path("table1")
+
+
+def scene_path(scene=None) -> Path:
+    """The file of a scene given by embedded name or path (``None``: the default, Table 1).
+
+    A bare word that names an embedded scene (``table1``, ``kharaz2001``; see
+    :func:`embedded_scenes`) is that scene; anything else is a path.
+    """
+    if scene is None:
+        scene = "table1"
+    text = str(scene)
+    if isinstance(scene, str) and text in embedded_scenes():
+        return Path(str(resources.files("jaximpact") / "scenes" / f"{text}.toml"))
+    return Path(scene)
+
+
+def describe_scene_source(scene=None) -> str:
+    """How a report names the scene: ``embedded NAME (description)`` or the path."""
+    name = "table1" if scene is None else str(scene)
+    known = embedded_scenes()
+    if isinstance(scene, (str, type(None))) and name in known:
+        return f"embedded {name} ({known[name]})"
+    return str(scene)
 
 
 def load_scene(path=None) -> Scene:
-    """Read a scene file; without a path, the embedded Table 1 scene.
+    """Read a scene: an embedded name (``table1``, ``kharaz2001``) or a TOML file path;
+    without one, the embedded Table 1 scene.
 
     **Raises:** `SceneError` naming the file and the section.key for unknown keys, missing
-    values, wrong types and out-of-range values.
+    values, wrong types and out-of-range values, and for a file that does not exist (with the
+    embedded names, in case a name was meant).
     """
-    path = default_scene_path() if path is None else Path(path)
+    path = scene_path(path)
     try:
         with open(path, "rb") as fh:
             data = tomllib.load(fh)
     except FileNotFoundError:
-        raise SceneError(f"scene file not found: {path}") from None
+        names = ", ".join(embedded_scenes())
+        raise SceneError(
+            f"{path}: scene file not found (embedded scenes, by name: {names})"
+        ) from None
+    except IsADirectoryError:
+        raise SceneError(f"{path}: is a directory, not a scene file") from None
+    except PermissionError:
+        raise SceneError(f"{path}: permission denied") from None
+    except UnicodeDecodeError as err:
+        raise SceneError(f"{path}: not valid TOML: {err}") from None
     except tomllib.TOMLDecodeError as err:
         raise SceneError(f"{path}: not valid TOML: {err}") from None
     try:
@@ -174,8 +219,9 @@ def scene_from_dict(data: dict) -> Scene:
         raise SceneError(f"solver.max_steps must be an integer, got {s['max_steps']!r}")
     if "method" in s and not isinstance(s["method"], str):
         raise SceneError(f"solver.method must be a string, got {s['method']!r}")
-    solver_kwargs = {
-        k: (v if k in ("method", "max_steps") else number("solver", k)) for k, v in s.items()
-    }
+    if "outputs" in s and not isinstance(s["outputs"], str):
+        raise SceneError(f"solver.outputs must be a string, got {s['outputs']!r}")
+    text_keys = ("method", "max_steps", "outputs")
+    solver_kwargs = {k: (v if k in text_keys else number("solver", k)) for k, v in s.items()}
     solver = Solver(**solver_kwargs)
     return Scene(particle=particle, contact=contact, model=model, impact=impact, solver=solver)

@@ -1,4 +1,16 @@
-"""Command-line interface: ``jaximpact simulate`` (and ``jaximpact fit``, see fitting/)."""
+"""jaximpact: simulate microsphere impacts (Brach, Dunn & Cheng 1999) on JAX.
+
+commands:
+  simulate  impacts of a scene: a table on screen, a results CSV with -o
+  sweep     millions of impacts (a file or a grid) to a resumable Parquet dataset
+  fit       identify contact parameters (C_A, C_H, f0, friction, ...) from rebound data
+  show      a scene as resolved: derived quantities, solver, the terms it compiles
+  scenes    the embedded scenes, by name (every SCENE argument takes a name or a path)
+
+units: SI throughout (m, s, kg, rad); angles in degrees from the surface normal.
+exit status: 0 ok; 1 the computation failed; 2 bad input (file, field, option); 3 a fit that
+did not produce a trustworthy answer.
+"""
 
 import argparse
 import math
@@ -12,6 +24,10 @@ from ._devices import use_all_cpu_cores
 # not converge (or is undetermined, or a misfit; see fitting/cli.py).
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
+
+#: Subcommands other packages add (the ``fit`` command of ``fitting``): entry points of this
+#: group, each a function ``add(subparsers)``. jaximpact itself never imports ``fitting``.
+PLUGIN_GROUP = "jaximpact.commands"
 
 SECTION_OF = {
     "radius": "particle",
@@ -28,6 +44,19 @@ PAPER_IMPACTS = {
     "angle_deg": [0.0, 40.0, -40.0],
     "omega0": [math.radians(1e6)] * 3,
 }
+SHOWN_COLUMNS = (
+    "speed",
+    "angle_deg",
+    "omega0",
+    "status",
+    "cor_n",
+    "vt_out",
+    "omega_out",
+    "rebound_angle_deg",
+    "contact_time",
+    "roll_time",
+    "max_overlap",
+)
 
 
 def scene_with_overrides(scene, overrides: dict):
@@ -40,10 +69,16 @@ def scene_with_overrides(scene, overrides: dict):
 
 
 def _table(columns: dict, names) -> str:
-    width = {n: max(len(n), *(len(_fmt(v)) for v in columns[n])) for n in names}
+    """A right-aligned text table: names, then units in brackets, then the rows."""
+    from .tables import COLUMN_UNITS
+
+    units = {n: f"[{COLUMN_UNITS[n]}]" if COLUMN_UNITS.get(n) else "" for n in names}
+    cells = {n: [_fmt(v) for v in columns[n]] for n in names}
+    width = {n: max(len(n), len(units[n]), *(len(c) for c in cells[n])) for n in names}
     lines = ["  ".join(n.rjust(width[n]) for n in names)]
-    for i in range(len(columns[names[0]])):
-        lines.append("  ".join(_fmt(columns[n][i]).rjust(width[n]) for n in names))
+    lines.append("  ".join(units[n].rjust(width[n]) for n in names))
+    for i in range(len(cells[names[0]])):
+        lines.append("  ".join(cells[n][i].rjust(width[n]) for n in names))
     return "\n".join(lines)
 
 
@@ -51,6 +86,16 @@ def _fmt(v) -> str:
     if isinstance(v, str):
         return v
     return "" if v != v else f"{v:.6g}"
+
+
+def failure_summary(reasons) -> str:
+    """``2 max_steps (the solver's step limit was reached), 1 nonfinite (...)``."""
+    from collections import Counter
+
+    from .tables import FAILURE_REASONS
+
+    counts = Counter(r for r in reasons if r)
+    return ", ".join(f"{k} {r} ({FAILURE_REASONS[r]})" for r, k in sorted(counts.items()))
 
 
 def cmd_simulate(args) -> int:
@@ -61,10 +106,14 @@ def cmd_simulate(args) -> int:
     import numpy as np
 
     from . import load_scene, simulate
+    from ._paths import check_readable, prepare_output, write_failed
+    from ._scene_io import describe_scene_source
     from .tables import ImpactTable, read_impacts, write_results
 
+    # Every file first: a missing input or an unwritable output is reported before computing.
     scene = load_scene(args.scene)
     if args.impacts:
+        check_readable(args.impacts, "impacts file")
         table = read_impacts(args.impacts)
     elif args.scene is None:
         table = ImpactTable(
@@ -78,38 +127,37 @@ def cmd_simulate(args) -> int:
             omega0=np.atleast_1d(float(i.omega0)),
             columns=("speed", "angle_deg", "omega0"),
         )
+    if args.output:
+        prepare_output(args.output, "results CSV")
+
     result = _simulate_from_cache(scene, table)
     if result is None:
         scene = scene_with_overrides(scene, dict(table.overrides))
         result = simulate(scene, table.speed, table.angle_deg, table.omega0)
     columns = result.columns()
     if args.output:
-        write_results(args.output, table.as_columns(), columns)
+        try:
+            write_results(args.output, table.as_columns(), columns)
+        except OSError as err:
+            raise write_failed(args.output, err) from None
     shown = {**table.as_columns(), **columns}
-    names = [
-        "speed",
-        "angle_deg",
-        "omega0",
-        "status",
-        "cor_n",
-        "vt_out",
-        "omega_out",
-        "rebound_angle_deg",
-        "contact_time",
-        "roll_time",
-        "max_overlap",
-    ]
-    print(
-        f"scene: {args.scene or 'embedded Table 1 (Brach, Dunn & Cheng 1999)'}; "
-        f"{len(table.speed)} impact(s); SI units"
-    )
-    if len(table.speed) <= 50 or args.output is None:
+    reasons = columns["failure_reason"]
+    n, failed = len(table.speed), int(np.sum(reasons != ""))
+    names = list(SHOWN_COLUMNS) + (["failure_reason"] if failed else [])
+    print(f"scene: {describe_scene_source(args.scene)}; {n} impact(s); SI units")
+    if n <= 50 or args.output is None:
         print(_table(shown, names))
-    failed = int(np.sum(columns["status"] == "failed"))
     if args.output:
         print(f"wrote {args.output}")
+    if failed == n:
+        print(f"error: all {n} impact(s) failed: {failure_summary(reasons)}", file=sys.stderr)
+        return EXIT_FAILED
     if failed:
-        print(f"warning: {failed} impact(s) failed; see the status column", file=sys.stderr)
+        print(
+            f"warning: {failed} of {n} impact(s) failed: {failure_summary(reasons)}; "
+            "see the failure_reason column",
+            file=sys.stderr,
+        )
     return 0
 
 
@@ -181,34 +229,96 @@ def _simulate_from_cache(scene, table):
     return ImpactResult(**dict(zip(fields, out, strict=True)))
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="jaximpact", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+def cmd_scenes(args) -> int:
+    from ._scene_io import embedded_scenes, scene_path
+
+    known = embedded_scenes()
+    width = max(map(len, known))
+    print("embedded scenes (give the name wherever a SCENE is asked for):")
+    for name, about in known.items():
+        print(f"  {name.ljust(width)}  {about}")
+        if args.paths:
+            print(f"  {''.ljust(width)}  {scene_path(name)}")
+    return 0
+
+
+def cmd_show(args) -> int:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from ._scene_report import scene_report
+
+    print(scene_report(args.scene))
+    return 0
+
+
+def _plugins(sub) -> None:
+    """Add the subcommands other installed packages register (``fit``, from ``fitting``)."""
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group=PLUGIN_GROUP):
+        try:
+            add = entry.load()
+        except ImportError:  # a plugin whose package is broken: leave its command out
+            continue
+        add(sub)
+
+
+SCENE_HELP = "scene: an embedded name (see `jaximpact scenes`) or a TOML file; default table1"
+
+
+def build_parser(plugins: bool = True) -> argparse.ArgumentParser:
+    from . import __version__
+    from ._sweep_cli import add_sweep_command
+    from .tables import COLUMN_UNITS
+
+    parser = argparse.ArgumentParser(
+        prog="jaximpact",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"jaximpact {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    units = ", ".join(f"{k} {v}" for k, v in COLUMN_UNITS.items() if v and v != "1")
     sim = sub.add_parser(
         "simulate",
         help="simulate impacts of a scene",
         description="Simulate impacts. Without SCENE: the embedded Table 1 "
         "scene on the paper's three impacts (1.66 m/s; 0, +40, -40 deg; "
-        "omega0 = 1e6 deg/s).",
+        "omega0 = 1e6 deg/s). With SCENE and no --impacts: the scene's [impact].",
+        epilog=f"units (SI; CSV headers keep the bare names): {units}; cor_n, cor_t and friction "
+        "are dimensionless. Exit status: 0 ok (a warning line counts failed impacts, each with "
+        "its failure_reason); 1 every impact failed, or the computation failed; 2 bad input.",
     )
-    sim.add_argument("scene", nargs="?", help="scene file (TOML); default: embedded Table 1")
+    sim.add_argument("scene", nargs="?", help=SCENE_HELP)
     sim.add_argument(
         "--impacts",
-        help="impacts CSV (speed, angle_deg[, omega0][, parameter "
+        help="impacts CSV (speed m/s, angle_deg, [omega0 rad/s], [parameter "
         "columns overriding the scene per row]); default: the scene's [impact]",
     )
-    sim.add_argument("-o", "--output", help="write the results CSV here (atomically)")
+    sim.add_argument(
+        "-o",
+        "--output",
+        help="write the results CSV here (atomically; missing directories are created)",
+    )
     sim.add_argument("--precision", choices=("float64", "float32"), default="float64")
     sim.set_defaults(func=cmd_simulate)
-    from ._sweep_cli import add_sweep_command
-
     add_sweep_command(sub)
-    try:
-        from fitting.cli import add_fit_command
-    except ImportError:
-        pass
-    else:
-        add_fit_command(sub)
+    show = sub.add_parser(
+        "show",
+        help="a scene as resolved: derived quantities, solver, compiled terms",
+        description="Print a scene as jaximpact resolves it: K (and where it came from), "
+        "C_A and C_H (from zeta where given), the moment of inertia, the Hertz length and "
+        "time scales of the scene's [impact], the solver and why it was picked, and which "
+        "terms the impact compiles and which it leaves out.",
+    )
+    show.add_argument("scene", nargs="?", help=SCENE_HELP)
+    show.set_defaults(func=cmd_show)
+    scenes = sub.add_parser("scenes", help="list the embedded scenes")
+    scenes.add_argument("--paths", action="store_true", help="also print each scene's file")
+    scenes.set_defaults(func=cmd_scenes)
+    if plugins:
+        _plugins(sub)
     return parser
 
 
