@@ -1,0 +1,203 @@
+"""What a new user meets on the command line (issue 13), through the installed command.
+
+Each test runs ``jaximpact`` in a subprocess, as a user would, and checks the exit status and
+that an error is one line naming the user's path or field, with no traceback.
+"""
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import jaximpact
+from jaximpact.tables import COLUMN_UNITS, RESULT_COLUMNS, read_results
+
+
+def _command():
+    exe = shutil.which("jaximpact", path=os.path.dirname(sys.executable))
+    return [exe] if exe else [sys.executable, "-m", "jaximpact.cli"]
+
+
+def run(*args, cwd=None):
+    env = {**os.environ, "JAXIMPACT_CACHE_DIR": "off"}
+    return subprocess.run(
+        [*_command(), *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=cwd,
+        timeout=600,
+    )
+
+
+def one_line_error(proc, code=2):
+    assert proc.returncode == code, (proc.returncode, proc.stdout, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    return lines[0]
+
+
+def test_version_and_description():
+    proc = run("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"jaximpact {jaximpact.__version__}"
+    text = run("--help").stdout
+    for command in ("simulate", "sweep", "fit", "show", "scenes"):
+        assert f"  {command}  " in text.split("positional arguments")[0], command
+
+
+def test_solver_outputs_rebound_in_toml(tmp_path):
+    scene = tmp_path / "rebound.toml"
+    text = jaximpact.default_scene_path().read_text() + '\n[solver]\noutputs = "rebound"\n'
+    scene.write_text(text)
+    out = tmp_path / "r.csv"
+    proc = run("simulate", scene, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    res = read_results(out)
+    assert res["status"][0] == "rebound" and 0 < res["cor_n"][0] < 1
+    # "rebound" integrates only the motion: no ledger (NaN, written empty).
+    assert np.isnan(res["energy_out"][0])
+    bad = tmp_path / "bad.toml"
+    bad.write_text(jaximpact.default_scene_path().read_text() + "\n[solver]\noutputs = 3\n")
+    assert "solver.outputs" in one_line_error(run("simulate", bad))
+
+
+def test_missing_and_unwritable_files_exit_2_before_computing(tmp_path):
+    line = one_line_error(run("simulate", "--impacts", tmp_path / "nope.csv"))
+    assert str(tmp_path / "nope.csv") in line and "not found" in line
+    line = one_line_error(run("simulate", tmp_path / "nope.toml"))
+    assert "nope.toml" in line and "table1" in line  # names the embedded scenes too
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    target = blocker / "results.csv"
+    start = time.perf_counter()
+    line = one_line_error(run("simulate", "-o", target))
+    assert str(target) in line and ".tmp" not in line
+    assert not target.exists()
+    # fit: the data file and the outputs too, before any compiling.
+    line = one_line_error(run("fit", tmp_path / "nope.csv", "--params", "f0"))
+    assert "nope.csv" in line and "not found" in line
+    line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "-o", target))
+    assert str(target) in line
+    # Every one of these stopped before simulating: together well under one compilation.
+    assert time.perf_counter() - start < 120
+
+
+def test_simulate_creates_missing_output_directories(tmp_path):
+    out = tmp_path / "new" / "deeper" / "results.csv"
+    proc = run("simulate", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    assert list(read_results(out)["status"]) == ["rebound"] * 3
+    assert not [p for p in out.parent.iterdir() if p.name != "results.csv"]  # no leftovers
+
+
+def test_units_in_table_and_help(tmp_path):
+    proc = run("simulate")
+    assert proc.returncode == 0, proc.stderr
+    header, units = proc.stdout.splitlines()[1:3]
+    assert header.split()[:3] == ["speed", "angle_deg", "omega0"]
+    assert units.split()[:3] == ["[m/s]", "[deg]", "[rad/s]"]
+    assert "[s]" in units and "[m]" in units  # contact_time, max_overlap
+    assert "omega_out rad/s" in run("simulate", "--help").stdout
+    assert set(RESULT_COLUMNS) <= set(COLUMN_UNITS)
+
+
+def test_all_failed_exits_1_with_reasons(tmp_path):
+    scene = tmp_path / "tight.toml"
+    scene.write_text(jaximpact.default_scene_path().read_text() + "\n[solver]\nmax_steps = 16\n")
+    out = tmp_path / "r.csv"
+    proc = run("simulate", scene, "-o", out)
+    line = one_line_error(proc, code=1)
+    assert "all 1 impact(s) failed" in line and "max_steps" in line
+    res = read_results(out)  # still written: the reasons are the result
+    assert list(res["status"]) == ["failed"] and list(res["failure_reason"]) == ["max_steps"]
+    assert "failure_reason" in proc.stdout and "max_steps" in proc.stdout
+
+
+def test_failure_reason_in_impact_result():
+    scene = jaximpact.table1_scene(max_steps=16)
+    res = jaximpact.simulate(scene, [1.0, 2.0], 0.0, 0.0)
+    assert list(res.failure_reasons) == ["max_steps", "max_steps"]
+    ok = jaximpact.simulate(jaximpact.table1_scene(), [1.0, 0.001], 0.0, 0.0)
+    assert list(ok.status_names) == ["rebound", "captured"]
+    assert list(ok.failure_reasons) == ["", ""]
+    assert list(ok.columns()["failure_reason"]) == ["", ""]
+
+
+def test_show_prints_derived_quantities(tmp_path):
+    proc = run("show")
+    assert proc.returncode == 0, proc.stderr
+    text = proc.stdout
+    c = jaximpact.load_scene().contact
+    # C_A and C_H derived from zeta at the reference speed, with where they came from.
+    assert f"{float(c.C_A):.6g} s/m  (from zeta_A = 400 at 1.66 m/s)" in text
+    assert f"{float(c.C_H):.6g} s/m  (from zeta_H = 100 at 1.66 m/s)" in text
+    assert "auto -> tsit5" in text and "stiffness estimate" in text
+    # The Hertz length of the default impact: (5 m v^2 / (4 K sqrt r))^(2/5).
+    p = jaximpact.load_scene().particle
+    m = float(p.density) * 4 / 3 * np.pi * float(p.radius) ** 3
+    n_star = (5 * m * 1.66**2 / (4 * float(c.K) * np.sqrt(float(p.radius)))) ** 0.4
+    assert f"{n_star:.6g} m" in text
+    scene = tmp_path / "elastic.toml"
+    scene.write_text(
+        "[particle]\nradius = 1e-5\ndensity = 2500\n"
+        "[contact]\nE1 = 7e10\nnu1 = 0.2\nE2 = 2e11\nnu2 = 0.3\nfriction = 0.2\n"
+        "[impact]\nspeed = 1.0\nangle_deg = 0.0\n"
+    )
+    text = run("show", scene).stdout
+    K = jaximpact.hertz_stiffness(7e10, 0.2, 2e11, 0.3)
+    assert f"{float(K):.6g} Pa  (from E1" in text
+    left = text.split("left out")[1]
+    assert "adhesion" in left and "tangential motion" in left  # f0 = 0, normal, no spin
+
+
+def test_embedded_scenes_by_name(tmp_path):
+    proc = run("scenes")
+    assert proc.returncode == 0 and "table1" in proc.stdout and "kharaz2001" in proc.stdout
+    out = tmp_path / "k.csv"
+    proc = run("simulate", "kharaz2001", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    res = read_results(out)
+    # The scene's [impact]: 3.9 m/s at 45 degrees, and a near-elastic normal rebound.
+    assert res["speed"][0] == 3.9 and res["angle_deg"][0] == 45.0
+    assert 0.97 < res["cor_n"][0] < 0.99
+    # A path with the same text is still a path: a local file named like a scene is read.
+    (tmp_path / "mine.toml").write_text(jaximpact.scene_path("kharaz2001").read_text())
+    assert run("show", "mine.toml", cwd=tmp_path).returncode == 0
+
+
+def test_fit_embedded_kharaz_data_by_name(tmp_path):
+    out = tmp_path / "fit.json"
+    proc = run("fit", "kharaz2001", "--params", "friction", "--no-progress", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    import json
+
+    result = json.loads(out.read_text())
+    # The rigid model on all angles; the published sliding friction is 0.092.
+    assert 0.085 < result["params"]["friction"]["value"] < 0.105, result["params"]
+    assert "embedded kharaz2001" in proc.stdout
+
+
+def test_jaximpact_never_imports_fitting():
+    code = (
+        "import sys, pkgutil, importlib, jaximpact\n"
+        "for m in pkgutil.walk_packages(jaximpact.__path__, 'jaximpact.'):\n"
+        "    importlib.import_module(m.name)\n"
+        "from jaximpact.cli import build_parser\n"
+        "build_parser(plugins=False)\n"
+        "assert not [m for m in sys.modules if m.split('.')[0] == 'fitting'], 'fitting imported'\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    # ... and the fit command still arrives, from the entry point fitting registers.
+    assert "fit" in run("fit", "--help").stdout
+
+
+@pytest.mark.parametrize("args", [("simulate", "--precision", "float16"), ("bogus",)])
+def test_bad_options_exit_2(args):
+    proc = run(*args)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
