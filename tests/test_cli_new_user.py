@@ -201,3 +201,20 @@ def test_jaximpact_never_imports_fitting():
 def test_bad_options_exit_2(args):
     proc = run(*args)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
+
+
+def test_readme_fit_data_examples_load(tmp_path):
+    """The two fit-data examples in README.md ("Fit data") are files fitting reads."""
+    import pathlib
+
+    import fitting
+
+    readme = (pathlib.Path(__file__).parents[1] / "README.md").read_text()
+    section = readme.split("**Fit data**")[1].split("## Scene file reference")[0]
+    blocks = [b.split("```", 1)[0] for b in section.split("```\n")[1::2]]
+    assert len(blocks) == 2
+    for k, text in enumerate(blocks):
+        path = tmp_path / f"example{k}.csv"
+        path.write_text(text)
+        obs = fitting.load_observations(path)
+        assert len(obs) == 2, text  # two observations in each example
