@@ -13,12 +13,21 @@ impacts: --impacts FILE (.csv, or Parquet with the same columns), or a grid:
   NAME: speed, angle_deg, omega0 (default: the scene's [impact]) or a scene parameter
   (radius, density, K, f0, C_A, C_H, friction, lambda).
 
-output: a directory RESULTS.parquet/ of part-NNNNNN.parquet files (the results-CSV columns)
-  and manifest-PPPPP.json files (settings hash, completed chunks); read it with
-  jaximpact.sweep.read_sweep(path) or any Parquet reader.
+output: a directory RESULTS.parquet/ of part-NNNNNN.parquet files (the results-CSV columns;
+  status and failure_reason as text, failure_reason null unless failed; each column's SI unit
+  as Parquet field metadata {"unit": "m/s"}) and _manifest-PPPPP.json files (settings,
+  completed chunks, failure counts). Read it with jaximpact.sweep.read_sweep(path),
+  pyarrow.parquet.read_table(path), pandas.read_parquet(path), or with polars and DuckDB
+  through the glob RESULTS.parquet/*.parquet. -o must be new, empty, or a sweep; missing parent
+  directories are created. Sweeps with the older manifest-PPPPP.json names stay readable and
+  resumable (a resume renames them).
 
 resume: run the same command again; finished chunks are kept. Other settings (scene, impacts,
-  chunk size, precision) are refused unless --restart.
+  chunk size, precision, version) are refused, naming each that differs, unless --restart.
+
+exit status: 0 done (a warning counts the failed impacts per reason); 1 every impact of the
+  sweep (done so far) failed, or the computation failed; 2 bad input or a file problem (one
+  line naming the path or field; checked before any computing).
 
 devices: each chunk is split over all local JAX devices (GPUs; on CPU force several with
   XLA_FLAGS=--xla_force_host_platform_device_count=N). --distributed: one process per host,
@@ -38,7 +47,7 @@ def cmd_sweep(args) -> int:
     if args.precision == "float64":
         jax.config.update("jax_enable_x64", True)
     from . import load_scene
-    from .sweep import GridSource, parse_grid, read_impacts_file, run_sweep
+    from .sweep import GridSource, describe_failures, parse_grid, read_impacts_file, run_sweep
 
     # Inputs first (numpy only): a typo should fail before any distributed rendezvous.
     source = read_impacts_file(args.impacts) if args.impacts else None
@@ -79,8 +88,27 @@ def cmd_sweep(args) -> int:
         f"{summary.chunks_skipped} already done; "
         + ("complete" if summary.complete else "incomplete (other processes' chunks pending)")
     )
-    if summary.failed:
-        print(f"warning: {summary.failed} impact(s) failed; see the status column", file=sys.stderr)
+    if summary.legacy_columns:
+        print(
+            "note: this sweep was begun before failure_reason existed; it keeps its columns "
+            "(reasons are not stored; --restart to get them)",
+            file=sys.stderr,
+        )
+    if summary.failures:
+        n_failed = sum(summary.failures.values())
+        counts = describe_failures(summary.failures)
+        if n_failed == summary.impacts_done:
+            print(
+                f"error: all {n_failed} impacts of the sweep failed: {counts}; see the "
+                "failure_reason column",
+                file=sys.stderr,
+            )
+            return 1
+        print(
+            f"warning: {n_failed} of {summary.impacts_done} impacts failed: {counts}; see the "
+            "status and failure_reason columns",
+            file=sys.stderr,
+        )
     return 0
 
 

@@ -15,27 +15,39 @@ cartesian grid of impact inputs and scene parameters, ``chunk_size`` impacts at 
           part-000000.parquet     # chunk 0: rows 0 .. chunk_size-1
           part-000001.parquet
           ...
-          manifest-00000.json     # process 0: settings hash and the chunks it completed
-          manifest-00001.json     # (one manifest per process with --distributed)
+          _manifest-00000.json    # process 0: settings, the chunks it completed, failure counts
+          _manifest-00001.json    # (one manifest per process with --distributed)
 
   Each part file has the results-CSV columns: the input columns, then
-  :data:`jaximpact.tables.RESULT_COLUMNS` (``status`` as a string, NaN for "not applicable").
-  :func:`read_sweep` (``pyarrow.Table``) and :func:`read_sweep_columns` (``{name: numpy array}``)
-  assemble the rows in order; ``pyarrow.dataset`` or any Parquet reader can read the part files.
+  :data:`jaximpact.tables.RESULT_COLUMNS` (NaN for "not applicable"); ``status`` is a string
+  and ``failure_reason`` a string that is null unless ``status`` is ``failed`` (then one of
+  :data:`jaximpact.tables.FAILURE_REASONS`). Every numeric column carries its SI unit as
+  Parquet field metadata (``{"unit": "m/s"}``, from :data:`jaximpact.tables.COLUMN_UNITS`).
+  :func:`read_sweep` (``pyarrow.Table``) and :func:`read_sweep_columns` (``{name: numpy array}``,
+  ``failure_reason`` ``""`` when null, as ``tables.read_results``) assemble the rows in order.
+  Bookkeeping files start with ``_`` and temporaries with ``.`` (and end in ``.tmp``), which
+  ``pyarrow.parquet.read_table(dir)``, ``pyarrow.dataset`` and pandas skip; polars and DuckDB
+  read the glob ``RESULTS.parquet/*.parquet``. Sweeps written before this layout
+  (``manifest-*.json``, parts without ``failure_reason``) stay readable and resumable: a resume
+  renames the manifest and keeps writing the sweep's own columns, so every part of a directory
+  has one schema (its ``failure_reason`` reads as null/``""``; ``--restart`` to get reasons).
 * **Resumable.** A part file and then the manifest are written atomically (temporary file,
   fsync, ``os.replace``). A chunk counts as done only once a manifest lists it, so after a kill
   at any point the same command continues with the first chunk not listed: listed chunks are
   never recomputed nor rewritten, and a part file written but not yet listed is simply written
-  again (same content). The manifest records a hash of the settings (scene file, impacts file or
-  grid, chunk size, precision, jaximpact version); a sweep refuses to continue into a directory
-  made with other settings unless ``restart=True`` (``--restart``), which deletes the old parts.
+  again (same content). The manifest records the settings (scene file, impacts file or grid,
+  chunk size, precision, jaximpact version) and their hash; a sweep refuses to continue into a
+  directory made with other settings, naming each setting that differs, unless
+  ``restart=True`` (``--restart``), which deletes the old parts. It also refuses a non-empty
+  directory that is not a sweep (no manifest, files of its own), and checks that the directory
+  can be created and written before computing anything.
 * **Sharded.** Each chunk is split across all local JAX devices: a ``jit`` with the inputs
   sharded along the batch over a 1-D mesh (``NamedSharding(mesh, P("batch"))``), so each device
   integrates its slice; they exchange only one boolean per solver step (see ``_runner``). The
   chunk size
   must be a multiple of the local device count. Across hosts (``jax.distributed``), process
   ``p`` of ``P`` takes the chunks ``i`` with ``i % P == p`` and writes its own part files and
-  its own manifest (``manifest-<p>.json``), so processes never write the same file; readers
+  its own manifest (``_manifest-<p>.json``), so processes never write the same file; readers
   merge the manifests.
 * **Bounded memory.** Results are never accumulated: at most two chunks (the one computing, the
   one being written) are held. Inputs from a file are held as float64 columns (8 bytes per value;
@@ -62,18 +74,22 @@ import json
 import math
 import os
 import re
+import secrets
 import signal
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .tables import (
+    COLUMN_UNITS,
+    FAILURE_REASONS,
     IMPACT_COLUMNS,
     IMPACT_PARAMETER_COLUMNS,
     RESULT_COLUMNS,
+    TEXT_RESULT_COLUMNS,
     ImpactTable,
     TableError,
     atomic_write_bytes,
@@ -88,6 +104,7 @@ __all__ = [
     "SweepError",
     "SweepSummary",
     "TableSource",
+    "describe_failures",
     "parse_grid",
     "read_impacts_file",
     "read_sweep",
@@ -100,7 +117,10 @@ FORMAT = "jaximpact-sweep/1"
 DEFAULT_CHUNK_SIZE = 8192
 GRID_NAMES = IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS
 _PART = re.compile(r"^part-(\d{6,})\.parquet$")
-_MANIFEST = re.compile(r"^manifest-(\d{5,})\.json$")
+# "_manifest-": since failure_reason; "manifest-": sweeps written before (still read, renamed).
+_MANIFEST = re.compile(r"^_?manifest-(\d{5,})\.json$")
+# Temporaries: tables.atomic_write_bytes's ".NAME.HEX.tmp" and the write test's.
+_TEMP = re.compile(r"^\.(part-|_?manifest-|_write-test-).*\.tmp$")
 # Test hook only: after this many chunks are committed in one run, write the next part file and
 # then SIGKILL the process before its manifest entry is written (the most delicate moment).
 _KILL_ENV = "JAXIMPACT_SWEEP_KILL_AFTER"
@@ -310,6 +330,11 @@ def read_impacts_file(path) -> TableSource:
 
 # ---------------------------------------------------------------------------------------------
 # Output directory: part files and manifests
+#
+# Bookkeeping files start with "_" and temporaries with "." (and end in ".tmp"), so that Parquet
+# readers that open the directory (pyarrow.parquet.read_table, pyarrow.dataset, pandas) skip
+# them. Sweeps written before this rule named their manifests "manifest-PPPPP.json": they are
+# read too, and a resume renames them.
 
 
 def _part_name(chunk: int) -> str:
@@ -317,7 +342,16 @@ def _part_name(chunk: int) -> str:
 
 
 def _manifest_name(process: int) -> str:
+    return f"_manifest-{process:05d}.json"
+
+
+def _legacy_manifest_name(process: int) -> str:
     return f"manifest-{process:05d}.json"
+
+
+def _is_ours(name: str) -> bool:
+    """A file this module writes: a part, a manifest (either name) or a temporary."""
+    return bool(_PART.match(name) or _MANIFEST.match(name) or _TEMP.match(name))
 
 
 def _atomic_write_table(path: Path, table) -> None:
@@ -330,38 +364,194 @@ def _atomic_write_table(path: Path, table) -> None:
     atomic_write_bytes(path, buffer.getvalue().to_pybytes())
 
 
-def _load_manifests(directory: Path) -> dict[int, dict]:
-    """``{process index: manifest}`` of every manifest in the directory."""
-    out = {}
-    if not directory.is_dir():
-        return out
-    for entry in sorted(directory.iterdir()):
-        match = _MANIFEST.match(entry.name)
-        if not match:
-            continue
+def _load_manifests(directory: Path) -> dict[int, tuple[Path, dict]]:
+    """``{process index: (file, manifest)}`` of every manifest in the directory.
+
+    ``_manifest-P.json`` wins over an old-style ``manifest-P.json`` of the same process (both
+    exist only for a moment, while a resume renames the old one).
+    """
+    for _attempt in range(10):
+        out: dict[int, tuple[Path, dict]] = {}
+        if not directory.is_dir():
+            return out
+        entry = directory
         try:
-            manifest = json.loads(entry.read_text(encoding="utf-8"))
+            for entry in sorted(directory.iterdir(), key=lambda e: e.name.startswith("_")):
+                match = _MANIFEST.match(entry.name)
+                if not match:
+                    continue
+                manifest = json.loads(entry.read_text(encoding="utf-8"))
+                if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+                    raise SweepError(f"{entry}: not a {FORMAT} manifest")
+                out[int(match.group(1))] = (entry, manifest)  # "_manifest" sorts last: wins
+        except FileNotFoundError:
+            continue  # renamed by another process of a distributed resume: list again
         except (OSError, json.JSONDecodeError) as err:
             # Written atomically, so this is damage from outside the sweep: say so, do not guess.
             raise SweepError(f"{entry}: unreadable sweep manifest ({err})") from None
-        if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-            raise SweepError(f"{entry}: not a {FORMAT} manifest")
-        out[int(match.group(1))] = manifest
-    return out
+        return out
+    raise SweepError(f"{directory}: its manifests keep changing while being read")
+
+
+def _result_columns(manifests: dict) -> tuple[str, ...]:
+    """The result columns of the sweep's part files (a sweep keeps one schema for its life).
+
+    Manifests written before ``failure_reason`` existed do not list them: such a sweep keeps
+    the columns it was begun with when resumed, so every part file of the directory has the same
+    schema (any reader can read it whole; :func:`read_sweep` fills ``failure_reason``).
+    """
+    legacy = RESULT_COLUMNS[:-1]
+    for _, manifest in manifests.values():
+        if tuple(manifest.get("result_columns", legacy)) != RESULT_COLUMNS:
+            return legacy
+    return RESULT_COLUMNS
+
+
+def _manifest_failures(directory: Path, manifest: dict) -> dict[str, int]:
+    """``{reason: count}`` over the chunks a manifest lists (``unrecorded``: an old sweep)."""
+    if "failures" in manifest:
+        return {str(k): int(v) for k, v in manifest["failures"].items()}
+    import pyarrow.parquet as pq
+
+    # A manifest written before failure counts were kept: count from its part files.
+    counts: dict[str, int] = {}
+    for chunk in manifest["completed"]:
+        file = directory / _part_name(int(chunk))
+        try:
+            names = pq.read_schema(file).names
+            table = pq.read_table(file, columns=[n for n in TEXT_RESULT_COLUMNS if n in names])
+        except Exception as err:  # pyarrow raises its own types
+            raise SweepError(f"{file}: listed as done but unreadable ({err})") from None
+        status = table.column("status").to_pylist()
+        reasons = (
+            table.column("failure_reason").to_pylist()
+            if "failure_reason" in table.column_names
+            else [None] * len(status)
+        )
+        _count_failures(counts, status, reasons)
+    return counts
+
+
+def _count_failures(counts: dict[str, int], status, reasons) -> None:
+    for s, r in zip(status, reasons, strict=True):
+        if s == "failed":
+            key = r or "unrecorded"
+            counts[key] = counts.get(key, 0) + 1
+
+
+def describe_failures(counts: dict[str, int]) -> str:
+    """``"2 max_steps (the solver's step limit was reached), 1 nonfinite (...)"``, most first."""
+    explain = {**FAILURE_REASONS, "unrecorded": "written before failure_reason was recorded"}
+    items = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))
+    return ", ".join(f"{n} {r} ({explain.get(r, 'unknown reason')})" for r, n in items if n)
 
 
 def _clear(directory: Path, keep=lambda name: False) -> None:
     """Delete this module's files (parts, manifests, temporaries) unless ``keep(name)``."""
     for entry in directory.iterdir():
-        name = entry.name
-        ours = (
-            _PART.match(name)
-            or _MANIFEST.match(name)
-            or (name.startswith((".part-", ".manifest-")) and name.endswith(".tmp"))
-        )
-        if ours and not keep(name):
+        if _is_ours(entry.name) and not keep(entry.name):
             with contextlib.suppress(FileNotFoundError):
                 entry.unlink()
+
+
+def _prepare_output(directory: Path) -> None:
+    """Create the output directory (and parents) and check that it can be written.
+
+    Raises:
+        SweepError: naming the path: it is a file, a parent is a file, it cannot be created or
+            is not writable, or it is a non-empty directory that is not a sweep.
+    """
+    if directory.exists() and not directory.is_dir():
+        raise SweepError(
+            f"{directory}: exists and is not a directory (a sweep writes a directory); "
+            "choose another -o"
+        )
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        blocker = next((p for p in directory.parents if p.exists()), None)
+        if blocker is not None and not blocker.is_dir():
+            reason = f"{blocker} is not a directory"
+        else:
+            reason = err.strerror or str(err)
+        raise SweepError(f"{directory}: cannot create the output directory ({reason})") from None
+    try:
+        names = [entry.name for entry in directory.iterdir()]
+    except OSError as err:
+        reason = err.strerror or err
+        raise SweepError(f"{directory}: cannot list the output directory ({reason})") from None
+    if not any(_MANIFEST.match(n) for n in names):
+        foreign = sorted(n for n in names if not _is_ours(n))
+        if foreign:
+            more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+            raise SweepError(
+                f"{directory}: not empty and not a sweep output (no _manifest-*.json; it holds "
+                f"{foreign[0]!r}{more}); choose a new or empty directory for -o"
+            )
+    probe = directory / f"._write-test-{secrets.token_hex(6)}.tmp"
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        os.unlink(probe)
+    except OSError as err:
+        raise SweepError(
+            f"{directory}: cannot write in the output directory ({err.strerror or err})"
+        ) from None
+
+
+def _setting_differences(old: dict, new: dict) -> list[str]:
+    """The settings that differ between a sweep's manifest and this run, one phrase each."""
+
+    def both(a, b) -> str:
+        return f"{a} in the sweep, {b} now"
+
+    out = []
+    if old.get("jaximpact") != new["jaximpact"]:
+        out.append(f"jaximpact version: {both(old.get('jaximpact'), new['jaximpact'])}")
+    if old.get("scene_sha256") != new["scene_sha256"]:
+        out.append(f"scene: other content, {both(old.get('scene'), new['scene'])}")
+    if old.get("impacts") != new["impacts"]:
+        out.extend(_impacts_differences(old.get("impacts") or {}, new["impacts"]))
+    for key in ("precision", "chunk_size"):
+        if old.get(key) != new[key]:
+            out.append(f"{key}: {both(old.get(key), new[key])}")
+    if not out:  # what remains is derived from the above; say it anyway
+        for key in sorted(set(old) | set(new)):
+            if key != "scene" and old.get(key) != new.get(key):
+                out.append(f"{key}: {both(old.get(key), new.get(key))}")
+    return out or ["the settings hash differs"]
+
+
+def _impacts_differences(old: dict, new: dict) -> list[str]:
+    def kind(f: dict) -> str:
+        return "an impacts file" if "impacts_sha256" in f else "a grid"
+
+    if kind(old) != kind(new):
+        return [f"impacts: {kind(old)} in the sweep, {kind(new)} now"]
+    if "impacts_sha256" in new:
+        return [
+            f"impacts file: other content, sha256 {old['impacts_sha256'][:12]}... in the sweep, "
+            f"{new['impacts_sha256'][:12]}... now"
+        ]
+    old_axes, new_axes = dict(old.get("grid", [])), dict(new["grid"])
+    if list(old_axes) != list(new_axes):
+        return [f"grid axes: {', '.join(old_axes)} in the sweep, {', '.join(new_axes)} now"]
+
+    def values(v: list) -> str:
+        if len(v) <= 4:
+            return ",".join(v)
+        return f"{len(v)} values {v[0]}..{v[-1]}"
+
+    out = [
+        f"grid {k}: {values(v)} in the sweep, {values(new_axes[k])} now"
+        for k, v in old_axes.items()
+        if v != new_axes[k]
+    ]
+    old_defaults = old.get("defaults", {})
+    for k, v in new.get("defaults", {}).items():
+        if k not in new_axes and old_defaults.get(k) != v:
+            old_value = old_defaults.get(k)
+            out.append(f"{k} (the scene's [impact]): {old_value} in the sweep, {v} now")
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -373,12 +563,38 @@ def _merged(path) -> tuple[dict, list[int]]:
     manifests = _load_manifests(directory)
     if not manifests:
         raise SweepError(f"{directory}: no sweep manifest (not a sweep output, or nothing done)")
-    hashes = {m["settings_hash"] for m in manifests.values()}
+    hashes = {m["settings_hash"] for _, m in manifests.values()}
     if len(hashes) != 1:
         raise SweepError(f"{directory}: manifests from different settings: {sorted(hashes)}")
-    settings = next(iter(manifests.values()))["settings"]
-    done = sorted({int(c) for m in manifests.values() for c in m["completed"]})
+    settings = next(iter(manifests.values()))[1]["settings"]
+    done = sorted({int(c) for _, m in manifests.values() for c in m["completed"]})
     return {**settings, "settings_hash": hashes.pop()}, done
+
+
+def _schema(input_columns, result_columns=RESULT_COLUMNS):
+    """The part files' schema: float64 inputs and results, text columns as strings; each
+    column's SI unit as field metadata ``{"unit": ...}`` (none for text columns)."""
+    import pyarrow as pa
+
+    def make_field(name: str):
+        unit = COLUMN_UNITS.get(name, "")
+        kind = pa.string() if name in TEXT_RESULT_COLUMNS else pa.float64()
+        return pa.field(name, kind, metadata={"unit": unit} if unit else None)
+
+    return pa.schema([make_field(n) for n in (*input_columns, *result_columns)])
+
+
+def _normalized(table, file: Path, target):
+    """A part file's table in the full schema: ``failure_reason`` added (null) to parts of a
+    sweep begun before it existed, units attached, file metadata dropped."""
+    import pyarrow as pa
+
+    if "failure_reason" not in table.column_names:
+        table = table.append_column("failure_reason", pa.nulls(table.num_rows, pa.string()))
+    try:
+        return pa.Table.from_arrays([table.column(n) for n in target.names], schema=target)
+    except (KeyError, pa.ArrowException) as err:
+        raise SweepError(f"{file}: columns differ from the sweep's ({err})") from None
 
 
 def read_sweep(path, *, allow_partial: bool = False):
@@ -390,7 +606,9 @@ def read_sweep(path, *, allow_partial: bool = False):
             chunks are absent) instead of raising.
 
     Returns:
-        pyarrow.Table: the input columns, then :data:`~jaximpact.tables.RESULT_COLUMNS`.
+        pyarrow.Table: the input columns, then :data:`~jaximpact.tables.RESULT_COLUMNS`, units
+        as field metadata; ``failure_reason`` is null unless ``status`` is ``failed`` (and for
+        every row of a sweep begun before the column existed).
 
     Raises:
         SweepError: not a sweep directory, manifests that disagree, a listed part file missing
@@ -406,6 +624,7 @@ def read_sweep(path, *, allow_partial: bool = False):
             f"{path}: sweep incomplete: {len(missing)} of {settings['n_chunks']} chunks not done "
             f"(first: {missing[0]}); run the same command again to finish it"
         )
+    target = _schema(settings["columns"])
     tables = []
     for chunk in done:
         file = Path(path) / _part_name(chunk)
@@ -416,32 +635,25 @@ def read_sweep(path, *, allow_partial: bool = False):
         meta = table.schema.metadata or {}
         if meta.get(b"jaximpact.settings_hash", b"").decode() != settings["settings_hash"]:
             raise SweepError(f"{file}: written with other settings than the manifest")
-        tables.append(table.replace_schema_metadata(None))
+        tables.append(_normalized(table, file, target))
     if not tables:
-        return _empty_table(settings["columns"])
+        return target.empty_table()
     return pa.concat_tables(tables)
-
-
-def _empty_table(input_columns):
-    import pyarrow as pa
-
-    fields = [pa.field(n, pa.float64()) for n in input_columns]
-    fields += [pa.field(n, pa.string() if n == "status" else pa.float64()) for n in RESULT_COLUMNS]
-    return pa.schema(fields).empty_table()
 
 
 def read_sweep_columns(path, *, allow_partial: bool = False) -> dict[str, np.ndarray]:
     """Read a sweep output as ``{column: numpy array}`` (like ``tables.read_results``).
 
-    Numeric columns are float64 (NaN for "not applicable"), ``status`` an array of str.
-    Arguments and exceptions as :func:`read_sweep`.
+    Numeric columns are float64 (NaN for "not applicable"), ``status`` and ``failure_reason``
+    arrays of str (``failure_reason`` ``""`` where null). Arguments and exceptions as
+    :func:`read_sweep`.
     """
     table = read_sweep(path, allow_partial=allow_partial)
     out = {}
     for name in table.column_names:
         column = table.column(name)
-        if name == "status":
-            out[name] = np.array(column.to_pylist(), dtype=str)
+        if name in TEXT_RESULT_COLUMNS:
+            out[name] = np.array(["" if v is None else v for v in column.to_pylist()], dtype=str)
         else:
             out[name] = np.asarray(column.to_numpy(), dtype=np.float64)
     return out
@@ -464,6 +676,12 @@ class SweepSummary:
         failed: impacts with status ``failed`` among those computed by this call.
         seconds: wall time of the call; ``devices``: local devices used.
         complete: every chunk of the sweep is listed in the manifests as seen at the end.
+        impacts_done: impacts in the chunks the manifests list at the end (every process, every
+            call; ``n_impacts`` once complete).
+        failures: ``{failure_reason: count}`` over those impacts (``unrecorded``: failed in a
+            sweep begun before reasons were recorded); empty when none failed.
+        legacy_columns: the sweep was begun before ``failure_reason`` existed; its part files
+            keep the older columns (one schema per directory), so reasons are not stored.
     """
 
     output: str
@@ -477,6 +695,9 @@ class SweepSummary:
     seconds: float
     devices: int
     complete: bool
+    impacts_done: int = 0
+    failures: dict = field(default_factory=dict)
+    legacy_columns: bool = False
 
 
 _RUNNERS: dict = {}
@@ -574,13 +795,21 @@ def _settings(scene_path, source, chunk_size: int, dtype) -> tuple[dict, str]:
     return settings, digest
 
 
-def _chunk_table(inputs: dict, columns, results: dict, settings_hash: str):
+def _chunk_table(inputs: dict, columns, results: dict, settings_hash: str, result_columns):
+    """One chunk's part file: inputs, then ``result_columns`` (``failure_reason`` null where
+    empty, i.e. unless failed), units as field metadata, the settings hash as file metadata."""
     import pyarrow as pa
 
     arrays = [pa.array(np.asarray(inputs[k], np.float64)) for k in columns]
-    arrays.append(pa.array(np.asarray(results["status"]).astype(str).tolist(), pa.string()))
-    arrays += [pa.array(np.asarray(results[k], np.float64)) for k in RESULT_COLUMNS[1:]]
-    table = pa.Table.from_arrays(arrays, names=[*columns, *RESULT_COLUMNS])
+    for name in result_columns:
+        if name == "failure_reason":
+            texts = [str(v) or None for v in np.asarray(results[name], dtype=object).tolist()]
+            arrays.append(pa.array(texts, pa.string()))
+        elif name in TEXT_RESULT_COLUMNS:
+            arrays.append(pa.array(np.asarray(results[name]).astype(str).tolist(), pa.string()))
+        else:
+            arrays.append(pa.array(np.asarray(results[name], np.float64)))
+    table = pa.Table.from_arrays(arrays, schema=_schema(columns, result_columns))
     return table.replace_schema_metadata({"jaximpact.settings_hash": settings_hash})
 
 
@@ -616,8 +845,9 @@ def run_sweep(
 
     Raises:
         SweepError: chunk size not a positive multiple of the device count, bad process share,
-            ``output`` not a directory, or results there made with other settings (without
-            ``restart``).
+            ``output`` a file, not creatable or not writable, a non-empty directory that is
+            not a sweep, or results there made with other settings (without ``restart``; the
+            message names each setting that differs). All raised before any computing.
         SceneError: the scene file is invalid. OSError: files cannot be read or written.
     """
     import jax
@@ -643,15 +873,14 @@ def run_sweep(
     n_chunks = settings["n_chunks"]
 
     directory = Path(output)
-    if directory.exists() and not directory.is_dir():
-        raise SweepError(f"{directory}: exists and is not a directory (a sweep writes a directory)")
-    directory.mkdir(parents=True, exist_ok=True)
+    _prepare_output(directory)  # before any computing: every file problem first
     mine = [c for c in range(n_chunks) if c % count == index]
     if restart:
         # Each process deletes only what it will rewrite, so concurrent processes of a
         # distributed restart never delete each other's new files; process 0 also deletes what
         # no process of this run owns (parts past the end, manifests of a larger old run).
-        own = {_part_name(c) for c in mine} | {_manifest_name(index)}
+        own = {_part_name(c) for c in mine}
+        own |= {_manifest_name(index), _legacy_manifest_name(index)}
 
         def keep(name: str) -> bool:
             if name in own:
@@ -669,15 +898,24 @@ def run_sweep(
         manifests = {}
     else:
         manifests = _load_manifests(directory)
-        for p, m in manifests.items():
+        for _, m in manifests.values():
             if m.get("settings_hash") != digest:
+                differences = _setting_differences(m.get("settings") or {}, settings)
                 raise SweepError(
-                    f"{directory / _manifest_name(p)}: results made with other settings "
-                    f"(scene, impacts, chunk size {m.get('settings', {}).get('chunk_size')}, "
-                    "precision or version differ); use --restart to discard them, or another -o"
+                    f"{directory}: a sweep made with other settings: {'; '.join(differences)}. "
+                    "Use --restart to discard its results, or another -o"
                 )
-    done = {int(c) for m in manifests.values() for c in m["completed"]}
-    own_completed = sorted(int(c) for c in manifests.get(index, {}).get("completed", []))
+        # Old-style manifest names (before "_manifest-"): this process renames its own (process
+        # 0 also those no process of this run owns), so Parquet readers skip them from now on.
+        for p, (file, m) in list(manifests.items()):
+            if (p == index or (index == 0 and p >= count)) and file.name != _manifest_name(p):
+                os.replace(file, directory / _manifest_name(p))
+                manifests[p] = (directory / _manifest_name(p), m)
+    result_columns = _result_columns(manifests)
+    done = {int(c) for _, m in manifests.values() for c in m["completed"]}
+    own_manifest = manifests[index][1] if index in manifests else {"completed": []}
+    own_completed = sorted(int(c) for c in own_manifest["completed"])
+    own_failures = _manifest_failures(directory, own_manifest) if own_completed else {}
     todo = [c for c in mine if c not in done]
 
     base, terms, cfg = _model_config(scene, source, chunk_size, dtype)
@@ -702,18 +940,23 @@ def run_sweep(
 
     def commit(chunk: int, valid: int, rows: dict, result) -> int:
         columns = jax.tree_util.tree_map(lambda x: np.asarray(x)[:valid], result).columns()
-        table = _chunk_table(rows, source.columns, columns, digest)
+        table = _chunk_table(rows, source.columns, columns, digest, result_columns)
         _atomic_write_table(directory / _part_name(chunk), table)
         if kill_after is not None and len(own_completed) - skipped_own >= kill_after:
             os.kill(os.getpid(), signal.SIGKILL)  # test hook: die before the manifest update
         own_completed.append(chunk)
+        # Counted in memory (reasons are known even where the sweep's columns lack them), and
+        # stored with the completed list in one atomic write.
+        _count_failures(own_failures, columns["status"].tolist(), columns["failure_reason"])
         manifest = {
             "format": FORMAT,
             "settings_hash": digest,
             "settings": settings,
             "process_index": index,
             "process_count": count,
+            "result_columns": list(result_columns),
             "completed": sorted(own_completed),
+            "failures": dict(sorted(own_failures.items())),
         }
         atomic_write_text(directory / _manifest_name(index), json.dumps(manifest, indent=1) + "\n")
         return int(np.sum(columns["status"] == "failed"))
@@ -726,7 +969,9 @@ def run_sweep(
         unit="impact",
         unit_scale=True,
         smoothing=0.1,
-        disable=not progress,
+        # No bar for a single chunk (it would jump from 0 to 100 %) nor for work under a second.
+        disable=not progress or len(todo) < 2,
+        delay=1.0,
         desc=f"sweep {directory.name}" + (f" [process {index}/{count}]" if count > 1 else ""),
     )
     failed = impacts_run = 0
@@ -747,7 +992,11 @@ def run_sweep(
     finally:
         bar.close()
     final = _load_manifests(directory)
-    complete = {int(c) for m in final.values() for c in m["completed"]} >= set(range(n_chunks))
+    finished = {int(c) for _, m in final.values() for c in m["completed"]}
+    failures: dict[str, int] = {}
+    for _, m in final.values():
+        for reason, n in _manifest_failures(directory, m).items():
+            failures[reason] = failures.get(reason, 0) + n
     return SweepSummary(
         output=str(directory),
         n_impacts=source.n,
@@ -759,17 +1008,23 @@ def run_sweep(
         failed=failed,
         seconds=time.perf_counter() - t_start,
         devices=len(devices),
-        complete=complete,
+        complete=finished >= set(range(n_chunks)),
+        impacts_done=sum(min(chunk_size, source.n - c * chunk_size) for c in finished),
+        failures=failures,
+        legacy_columns=result_columns != RESULT_COLUMNS,
     )
 
 
 def iter_chunks(path) -> Iterator:
     """Yield the completed part files of a sweep as ``pyarrow.Table``, in chunk order.
 
-    For sweeps too large to read at once. Raises as :func:`read_sweep` (partial allowed).
+    For sweeps too large to read at once. Tables as :func:`read_sweep`'s rows (same schema);
+    raises as :func:`read_sweep` (partial allowed).
     """
     import pyarrow.parquet as pq
 
-    _, done = _merged(path)
+    settings, done = _merged(path)
+    target = _schema(settings["columns"])
     for chunk in done:
-        yield pq.read_table(Path(path) / _part_name(chunk)).replace_schema_metadata(None)
+        file = Path(path) / _part_name(chunk)
+        yield _normalized(pq.read_table(file), file, target)

@@ -1,9 +1,10 @@
 """Tests of ``jaximpact sweep`` (jaximpact/sweep.py): equality with ``simulate``, kill and
-resume, multi-device sharding, the process share of a distributed run, and bad input.
+resume, multi-device sharding, the process share of a distributed run, the Parquet layout
+(readers, units, sweeps of the older layout), failure counts and bad input or files.
 
 Chunks of 64 impacts keep every run short; the in-process sweeps share one compilation (same
-model terms, solver and chunk size). Subprocess runs exercise the command line, a real SIGKILL
-and forced host devices.
+model terms, solver and chunk size). Subprocess runs of the installed ``jaximpact`` command
+exercise exit codes and messages, a real SIGKILL and forced host devices.
 """
 
 import json
@@ -11,6 +12,7 @@ import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,7 +28,7 @@ from jaximpact.sweep import (
     read_sweep_columns,
     run_sweep,
 )
-from jaximpact.tables import RESULT_COLUMNS, read_impacts
+from jaximpact.tables import COLUMN_UNITS, RESULT_COLUMNS, TEXT_RESULT_COLUMNS, read_impacts
 
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
@@ -51,11 +53,17 @@ def write_impacts(path, n=N, seed=0):
     return path
 
 
+def jaximpact_command() -> list[str]:
+    """The installed console script (next to this interpreter), else ``python -m``."""
+    script = os.path.join(os.path.dirname(sys.executable), "jaximpact")
+    return [script] if os.path.exists(script) else [sys.executable, "-m", "jaximpact.cli"]
+
+
 def run_cli(args, env_extra=None, timeout=300):
     env = {k: v for k, v in os.environ.items() if k != "JAXIMPACT_SWEEP_KILL_AFTER"}
     env.update(env_extra or {})
     return subprocess.run(
-        [sys.executable, "-m", "jaximpact.cli", "sweep", *args, "--no-progress"],
+        [*jaximpact_command(), "sweep", *args, "--no-progress"],
         env=env,
         capture_output=True,
         text=True,
@@ -65,9 +73,10 @@ def run_cli(args, env_extra=None, timeout=300):
 
 def assert_same(a, b, rtol=0.0):
     assert list(a) == list(b)
-    np.testing.assert_array_equal(a["status"], b["status"])
+    for name in TEXT_RESULT_COLUMNS:
+        np.testing.assert_array_equal(np.asarray(a[name], str), np.asarray(b[name], str))
     for name in a:
-        if name != "status":
+        if name not in TEXT_RESULT_COLUMNS:
             np.testing.assert_allclose(a[name], b[name], rtol=rtol, atol=0, equal_nan=True)
 
 
@@ -102,13 +111,15 @@ def test_sweep_equals_simulate_row_for_row(impacts, reference):
     # Chunks of 64 against one batch of 150: the same model and solver, per-impact arithmetic.
     assert_same(got, expected, rtol=1e-12)
     assert sorted(p.name for p in out.iterdir()) == [
-        "manifest-00000.json",
+        "_manifest-00000.json",
         "part-000000.parquet",
         "part-000001.parquet",
         "part-000002.parquet",
     ]
     assert pq.read_table(out / "part-000002.parquet").num_rows == N - 2 * CHUNK
-    assert read_sweep(out).schema.field("status").type == pa.string()
+    schema = read_sweep(out).schema
+    assert schema.field("status").type == pa.string()
+    assert schema.field("failure_reason").type == pa.string()
 
 
 def test_grid_sweep_equals_simulate_on_the_product(tmp_path):
@@ -148,7 +159,7 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(impacts, reference, tm
     # SIGKILL right after chunk 1's part file is written, before the manifest lists it.
     killed = run_cli(args, {"JAXIMPACT_SWEEP_KILL_AFTER": "1"})
     assert killed.returncode == -9, killed.stderr
-    manifest = json.loads((out / "manifest-00000.json").read_text())
+    manifest = json.loads((out / "_manifest-00000.json").read_text())
     assert manifest["completed"] == [0]
     assert (out / "part-000001.parquet").exists()  # written, not listed: redone on resume
     with pytest.raises(SweepError, match="incomplete"):
@@ -212,9 +223,9 @@ def test_process_shares_merge_to_the_whole_sweep(impacts, reference, tmp_path):
         source, out, chunk_size=CHUNK, progress=False, process_index=0, process_count=2
     )
     assert second.chunks_run == 2 and second.complete
-    assert {p.name for p in out.glob("manifest-*.json")} == {
-        "manifest-00000.json",
-        "manifest-00001.json",
+    assert {p.name for p in out.glob("*manifest-*.json")} == {
+        "_manifest-00000.json",
+        "_manifest-00001.json",
     }
     assert_same(read_sweep_columns(out), reference[1])
     # A later single-process run sees both manifests: nothing left to do.
@@ -266,10 +277,14 @@ def test_cli_reports_bad_grid_with_status_2(tmp_path, capsys):
 def test_changed_settings_are_refused_unless_restart(impacts, reference, tmp_path):
     out = tmp_path / "copy"
     shutil.copytree(reference[0], out)
-    with pytest.raises(SweepError, match="other settings.*chunk size 64.*--restart"):
+    with pytest.raises(SweepError) as err:
         run_sweep(read_impacts_file(impacts), out, chunk_size=32, progress=False)
+    assert str(err.value) == (
+        f"{out}: a sweep made with other settings: chunk_size: 64 in the sweep, 32 now. "
+        "Use --restart to discard its results, or another -o"
+    )
     changed = write_impacts(tmp_path / "changed.csv", seed=1)
-    with pytest.raises(SweepError, match="other settings"):
+    with pytest.raises(SweepError, match=r"other settings: impacts file: other content, sha256"):
         run_sweep(read_impacts_file(changed), out, chunk_size=CHUNK, progress=False)
     assert read_sweep_columns(out)["speed"].tolist() == reference[1]["speed"].tolist()
 
@@ -282,6 +297,47 @@ def test_changed_settings_are_refused_unless_restart(impacts, reference, tmp_pat
     (tmp_path / "file").write_text("")
     with pytest.raises(SweepError, match="not a directory"):
         run_sweep(read_impacts_file(impacts), tmp_path / "file", chunk_size=CHUNK, progress=False)
+
+
+def test_refusal_names_every_setting_that_differs():
+    from jaximpact.sweep import _setting_differences
+
+    grid = {"grid": [["speed", ["1.0", "2.0"]]], "defaults": {"angle_deg": "0.0", "omega0": "0.0"}}
+    old = {
+        "format": "jaximpact-sweep/1",
+        "jaximpact": "0.1.0",
+        "scene": "embedded Table 1",
+        "scene_sha256": "a" * 64,
+        "impacts": grid,
+        "precision": "float64",
+        "chunk_size": 8192,
+    }
+    assert _setting_differences(old, dict(old)) == ["the settings hash differs"]
+    new = {
+        **old,
+        "jaximpact": "0.2.0",
+        "scene": "mine.toml",
+        "scene_sha256": "b" * 64,
+        "impacts": {"grid": [["speed", ["1.0", "3.0"]]], "defaults": {**grid["defaults"]}},
+        "precision": "float32",
+        "chunk_size": 1024,
+    }
+    new["impacts"]["defaults"]["omega0"] = "100.0"
+    assert _setting_differences(old, new) == [
+        "jaximpact version: 0.1.0 in the sweep, 0.2.0 now",
+        "scene: other content, embedded Table 1 in the sweep, mine.toml now",
+        "grid speed: 1.0,2.0 in the sweep, 1.0,3.0 now",
+        "omega0 (the scene's [impact]): 0.0 in the sweep, 100.0 now",
+        "precision: float64 in the sweep, float32 now",
+        "chunk_size: 8192 in the sweep, 1024 now",
+    ]
+    axes = {"grid": [["speed", [str(float(v)) for v in range(10)]]], "defaults": grid["defaults"]}
+    assert _setting_differences({**old, "impacts": axes}, {**old, "impacts": grid}) == [
+        "grid speed: 10 values 0.0..9.0 in the sweep, 1.0,2.0 now"
+    ]
+    assert _setting_differences(old, {**old, "impacts": {"impacts_sha256": "c" * 64}}) == [
+        "impacts: a grid in the sweep, an impacts file now"
+    ]
 
 
 def test_read_sweep_rejects_what_is_not_a_sweep(tmp_path):
@@ -317,8 +373,8 @@ def test_two_processes_with_jax_distributed(tmp_path):
     assert [p.returncode for p in procs] == [0, 0], outputs
     assert "this run: 1 chunk(s), 64 impacts" in outputs[0][0]  # chunk 0 (of 0, 1)
     assert "this run: 1 chunk(s), 36 impacts" in outputs[1][0]  # chunk 1, the padded one
-    manifests = sorted(p.name for p in out.glob("manifest-*.json"))
-    assert manifests == ["manifest-00000.json", "manifest-00001.json"]
+    manifests = sorted(p.name for p in out.glob("*manifest-*.json"))
+    assert manifests == ["_manifest-00000.json", "_manifest-00001.json"]
     got = read_sweep_columns(out)
     assert len(got["speed"]) == 100
     # Against one process (same chunks): simulate on one batch of 100 may differ in its
@@ -326,3 +382,265 @@ def test_two_processes_with_jax_distributed(tmp_path):
     source = GridSource(parse_grid(grid[1::2]), {"speed": 1.0, "angle_deg": 0.0, "omega0": 0.0})
     run_sweep(source, tmp_path / "one", chunk_size=CHUNK, progress=False)
     assert_same(got, read_sweep_columns(tmp_path / "one"), rtol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# (5) The Parquet layout: any reader, units, sweeps of the older layout
+
+
+def _pyarrow_read_table(out):
+    table = pq.read_table(out)
+    return table.column_names, table.column("speed").to_numpy()
+
+
+def _pyarrow_dataset(out):
+    import pyarrow.dataset as ds
+
+    table = ds.dataset(out).to_table()
+    return table.column_names, table.column("speed").to_numpy()
+
+
+def _pandas(out):
+    pd = pytest.importorskip("pandas")
+    frame = pd.read_parquet(out)
+    return list(frame.columns), frame["speed"].to_numpy()
+
+
+def _polars(out):
+    pl = pytest.importorskip("polars")
+    frame = pl.read_parquet(f"{out}/*.parquet")  # a bare directory: polars wants a glob
+    return frame.columns, frame["speed"].to_numpy()
+
+
+def _duckdb(out):
+    duckdb = pytest.importorskip("duckdb")
+    relation = duckdb.sql(f"SELECT * FROM read_parquet('{out}/*.parquet')")
+    return relation.columns, relation.fetchnumpy()["speed"]
+
+
+@pytest.mark.parametrize(
+    "reader", [_pyarrow_read_table, _pyarrow_dataset, _pandas, _polars, _duckdb]
+)
+def test_parquet_readers_open_the_sweep_directory(reader, reference, tmp_path):
+    out = tmp_path / "results.parquet"
+    shutil.copytree(reference[0], out)
+    # What a kill during an atomic write leaves behind: readers must skip these as well.
+    (out / ".part-000003.parquet.0123456789ab.tmp").write_bytes(b"PAR1 torn")
+    (out / "._manifest-00000.json.0123456789ab.tmp").write_text("{")
+    columns, speed = reader(out)
+    assert list(columns) == list(reference[1])
+    np.testing.assert_array_equal(np.sort(speed), np.sort(reference[1]["speed"]))
+
+
+def test_units_are_parquet_field_metadata(reference):
+    out = reference[0]
+    for table in (pq.read_schema(out / "part-000000.parquet"), read_sweep(out).schema):
+        for name in table.names:
+            unit = COLUMN_UNITS[name]
+            assert table.field(name).metadata == ({b"unit": unit.encode()} if unit else None)
+    assert pq.read_table(out).schema.field("speed").metadata == {b"unit": b"m/s"}
+    assert read_sweep(out).schema.field("contact_time").metadata == {b"unit": b"s"}
+
+
+def test_failure_reason_is_null_unless_failed(reference):
+    table = read_sweep(reference[0])
+    failed = np.array(table.column("status").to_pylist()) == "failed"
+    reasons = table.column("failure_reason")
+    assert reasons.null_count == np.sum(~failed)
+    assert (read_sweep_columns(reference[0])["failure_reason"] == "").sum() == np.sum(~failed)
+
+
+def make_old_layout(out):
+    """Turn a sweep into one written before failure_reason: manifest-*.json names, parts
+    without failure_reason nor units, no result_columns / failures in the manifest."""
+    new = out / "_manifest-00000.json"
+    manifest = json.loads(new.read_text())
+    del manifest["result_columns"], manifest["failures"]
+    new.unlink()
+    for part in out.glob("part-*.parquet"):
+        table = pq.read_table(part).drop_columns(["failure_reason"])
+        bare = pa.Table.from_arrays(table.columns, names=table.column_names)
+        pq.write_table(bare.replace_schema_metadata(table.schema.metadata), part)
+    return manifest
+
+
+def test_old_layout_sweep_reads_and_resumes_with_one_schema(impacts, reference, tmp_path):
+    out = tmp_path / "old.parquet"
+    shutil.copytree(reference[0], out)
+    manifest = make_old_layout(out)
+    (out / "manifest-00000.json").write_text(json.dumps(manifest))
+    table = read_sweep(out)
+    assert table.column_names == list(reference[1])
+    assert table.column("failure_reason").null_count == N
+    assert_same(read_sweep_columns(out), reference[1])
+
+    # Interrupted before chunk 2: the resume renames the manifest and keeps the old columns.
+    manifest["completed"] = [0, 1]
+    (out / "manifest-00000.json").write_text(json.dumps(manifest))
+    (out / "part-000002.parquet").unlink()
+    summary = run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False)
+    assert summary.chunks_run == 1 and summary.complete and summary.legacy_columns
+    assert sorted(p.name for p in out.glob("*manifest*")) == ["_manifest-00000.json"]
+    schemas = {tuple(pq.read_schema(p).names) for p in out.glob("part-*.parquet")}
+    assert schemas == {tuple(n for n in reference[1] if n != "failure_reason")}
+    assert pq.read_table(out).num_rows == N
+    assert_same(read_sweep_columns(out), reference[1])
+
+
+# ---------------------------------------------------------------------------------------------
+# (6) Progress bar, files, failures
+
+
+def test_no_progress_bar_for_short_work(impacts, reference, tmp_path, capsys):
+    out = tmp_path / "copy"
+    shutil.copytree(reference[0], out)
+    run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK)  # nothing left to do
+    small = read_impacts_file(write_impacts(tmp_path / "small.csv", n=40))
+    run_sweep(small, tmp_path / "small", chunk_size=CHUNK)  # one chunk
+    assert capsys.readouterr().err == ""
+
+
+def test_non_sweep_directory_is_refused(impacts, tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    for restart in (False, True):
+        with pytest.raises(SweepError) as err:
+            run_sweep(read_impacts_file(impacts), mine, chunk_size=CHUNK, restart=restart)
+        assert str(err.value) == (
+            f"{mine}: not empty and not a sweep output (no _manifest-*.json; it holds "
+            "'notes.txt'); choose a new or empty directory for -o"
+        )
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+
+
+def test_unwritable_output_is_refused_before_computing(impacts, tmp_path, monkeypatch):
+    import jaximpact.sweep as sweep_module
+
+    def no_computing(*args, **kwargs):
+        raise AssertionError("computed before checking the output")
+
+    real_open = os.open
+
+    def read_only(path, *args, **kwargs):
+        if "_write-test-" in str(path):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(sweep_module, "_model_config", no_computing)
+    monkeypatch.setattr(os, "open", read_only)
+    with pytest.raises(SweepError) as err:
+        run_sweep(read_impacts_file(impacts), tmp_path / "a" / "b", chunk_size=CHUNK)
+    assert str(err.value) == (
+        f"{tmp_path / 'a' / 'b'}: cannot write in the output directory (Permission denied)"
+    )
+    assert not list((tmp_path / "a" / "b").iterdir())  # created (parents too), left empty
+
+
+def _file_problem(tmp_path, case):
+    """``(arguments, the path the message must name, its reason)`` for a bad-file case."""
+    good = ["--grid", "speed=1"]
+    out = tmp_path / "out.parquet"
+    if case == "missing impacts":
+        return ["--impacts", str(tmp_path / "nope.csv"), "-o", str(out)], "nope.csv", "No such"
+    if case == "impacts is a directory":
+        return ["--impacts", str(tmp_path), "-o", str(out)], str(tmp_path), "Is a directory"
+    if case == "impacts not Parquet":
+        (tmp_path / "bad.parquet").write_text("speed,angle_deg\n1,0\n")
+        return (
+            ["--impacts", str(tmp_path / "bad.parquet"), "-o", str(out)],
+            "bad.parquet",
+            "not a readable Parquet file",
+        )
+    if case == "impacts unreadable":
+        (tmp_path / "secret.csv").write_text("speed,angle_deg\n1,0\n")
+        (tmp_path / "secret.csv").chmod(0)
+        return ["--impacts", str(tmp_path / "secret.csv"), "-o", str(out)], "secret", "denied"
+    if case == "output is a file":
+        out.write_text("")
+        return [*good, "-o", str(out)], str(out), "exists and is not a directory"
+    if case == "output parent is a file":
+        (tmp_path / "file").write_text("")
+        target = tmp_path / "file" / "sub" / "out.parquet"
+        return [*good, "-o", str(target)], str(target), f"({tmp_path / 'file'} is not a directory)"
+    if case == "output read-only":
+        out.mkdir()
+        out.chmod(0o555)
+        return [*good, "-o", str(out)], str(out), "cannot write in the output directory"
+    if case == "output not a sweep":
+        out.mkdir()
+        (out / "thesis.tex").write_text("")
+        return [*good, "-o", str(out)], str(out), "not empty and not a sweep output"
+    raise AssertionError(case)
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing impacts",
+        "impacts is a directory",
+        "impacts not Parquet",
+        "impacts unreadable",
+        "output is a file",
+        "output parent is a file",
+        "output read-only",
+        "output not a sweep",
+    ],
+)
+def test_file_problems_exit_2_with_one_line(case, tmp_path):
+    if case in ("impacts unreadable", "output read-only") and os.geteuid() == 0:
+        pytest.skip("root reads and writes regardless of permissions")
+    args, path, reason = _file_problem(tmp_path, case)
+    run = run_cli(args, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert run.stdout == ""
+    line = run.stderr.strip()
+    assert "\n" not in line and "Traceback" not in line
+    assert line.startswith("error: ") and path in line and reason in line, line
+
+
+@pytest.fixture(scope="module")
+def step_limited_scene(tmp_path_factory):
+    """Table 1 with a step limit that normal impacts (about 180-240 steps) stay under and
+    oblique ones at 40 deg (about 270-330) exceed (no initial spin)."""
+    path = tmp_path_factory.mktemp("scene") / "limited.toml"
+    scene = Path(ji.default_scene_path()).read_text()
+    path.write_text(scene + "\n[solver]\nmax_steps = 250\n")
+    return path
+
+
+def test_failures_are_counted_per_reason_and_all_failed_exits_1(
+    step_limited_scene, tmp_path, capsys
+):
+    grid = ["--grid", "speed=0.3:4:8:log", "--grid", "angle_deg=0,40", "--grid", "omega0=0"]
+    out = tmp_path / "mixed.parquet"
+    common = ["--chunk-size", str(CHUNK), "--no-progress"]
+    assert main(["sweep", str(step_limited_scene), *grid, "-o", str(out), *common]) == 0
+    explained = "8 max_steps (the solver's step limit was reached)"
+    assert capsys.readouterr().err == (
+        f"warning: 8 of 16 impacts failed: {explained}; see the status and failure_reason columns\n"
+    )
+    got = read_sweep_columns(out)
+    failed = got["status"] == "failed"
+    np.testing.assert_array_equal(failed, got["angle_deg"] == 40)
+    np.testing.assert_array_equal(got["failure_reason"], np.where(failed, "max_steps", ""))
+    assert read_sweep(out).column("failure_reason").null_count == 8
+    manifest = json.loads((out / "_manifest-00000.json").read_text())
+    assert manifest["failures"] == {"max_steps": 8}
+
+    grid[3] = "angle_deg=40"
+    out = tmp_path / "all.parquet"
+    assert main(["sweep", str(step_limited_scene), *grid, "-o", str(out), *common]) == 1
+    assert capsys.readouterr().err == (
+        f"error: all 8 impacts of the sweep failed: {explained}; see the failure_reason column\n"
+    )
+    assert read_sweep(out).num_rows == 8  # the results are written all the same
+
+
+def test_describe_failures_orders_by_count():
+    from jaximpact.sweep import describe_failures
+
+    assert describe_failures({"nonfinite": 1, "max_steps": 2, "unrecorded": 1}) == (
+        "2 max_steps (the solver's step limit was reached), 1 nonfinite (the state became NaN "
+        "or infinite), 1 unrecorded (written before failure_reason was recorded)"
+    )
