@@ -16,9 +16,9 @@ from ._scene import hertz_stiffness as hertz_stiffness
 from ._scene import table1_scene as table1_scene
 from ._scene_io import default_scene_path as default_scene_path
 from ._scene_io import embedded_scenes as embedded_scenes
-from ._scene_io import scene_path as scene_path
 from ._scene_io import load_scene as load_scene
 from ._scene_io import scene_from_dict as scene_from_dict
+from ._scene_io import scene_path as scene_path
 from ._sensitivity import output_jacobian as output_jacobian
 from ._simulate import Integration as Integration
 from ._simulate import integration_settings as integration_settings
