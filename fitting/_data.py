@@ -198,17 +198,6 @@ class _Builder:
         )
 
 
-def _check_header(path, header, header_line, allowed, required):
-    for name in header:
-        if name not in allowed:
-            raise _fail(
-                path, header_line, name, f"unknown column; allowed columns: {', '.join(allowed)}"
-            )
-    for name in required:
-        if name not in header:
-            raise _fail(path, header_line, name, "required column missing from the header")
-
-
 def load_observations(path) -> Observations:
     """Read an observation file in wide or long layout (detected from the header).
 
@@ -233,15 +222,10 @@ def load_observations(path) -> Observations:
 
     if "observable" in header:
         layout = "long"
-        _check_header(
-            path,
-            header,
-            rows.header_line,
-            _IMPACT_NAMES + _LONG_EXTRA,
-            ("speed", "angle_deg", "observable", "value"),
+        rows.check_header(
+            _IMPACT_NAMES + _LONG_EXTRA, ("speed", "angle_deg", "observable", "value")
         )
-        for line, values in rows.rows:
-            fields = dict(zip(header, values, strict=True))
+        for line, fields in rows.records():
             name = fields["observable"]
             if name not in OBSERVABLES:
                 raise _fail(
@@ -260,7 +244,7 @@ def load_observations(path) -> Observations:
         allowed = (
             _IMPACT_NAMES + OBSERVABLES + tuple(f"sigma_{n}" for n in OBSERVABLES) + ("status",)
         )
-        _check_header(path, header, rows.header_line, allowed, ("speed", "angle_deg"))
+        rows.check_header(allowed, ("speed", "angle_deg"))
         for name in header:
             if name.startswith("sigma_") and name.removeprefix("sigma_") not in header:
                 raise _fail(
@@ -281,8 +265,7 @@ def load_observations(path) -> Observations:
                 f"no observed columns; expected some of {', '.join(OBSERVABLES)} or status "
                 "(or, for the long layout, an 'observable' column)",
             )
-        for line, values in rows.rows:
-            fields = dict(zip(header, values, strict=True))
+        for line, fields in rows.records():
             impact = builder.impact(line, fields)
             for name in header:
                 if name == "status":

@@ -1,4 +1,4 @@
-"""Impact tables (CSV input) and results files (CSV output), numpy only.
+"""Impact tables (CSV input) and results files (CSV output), on numpy and pyarrow.
 
 File formats are those of the project conventions:
 
@@ -12,9 +12,10 @@ fields is ignored. Every problem in an input file is a :class:`TableError` (a ``
 naming the file, the 1-based line number (as an editor shows it, comment lines included), the
 column and the allowed values: a row is never dropped silently.
 
-This module deliberately imports no JAX so that readers, writers and their tests stay light; the
-small parsing helpers (:func:`read_csv_rows`, :func:`parse_number`, :func:`check_impact_value`)
-are shared with ``fitting._data``.
+pyarrow parses the CSV (quoting, conversion to numbers); this module sorts out comments and line
+numbers around it. It deliberately imports no JAX so that readers, writers and their tests stay
+light; the small parsing helpers (:func:`read_csv_rows`, :func:`parse_number`,
+:func:`check_impact_value`) are shared with ``fitting._data``.
 """
 
 from __future__ import annotations
@@ -24,12 +25,16 @@ import csv
 import io
 import math
 import os
+import re
 import secrets
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pv
 
 __all__ = [
     "IMPACT_COLUMNS",
@@ -178,16 +183,18 @@ def allowed_range(name: str) -> str:
     raise KeyError(name)
 
 
-def _in_range(name: str, value: float) -> bool:
-    if not math.isfinite(value):
-        return False
+def _in_range(name: str, value) -> np.ndarray:
+    """Whether each of ``value`` (a float or an array) is allowed in column ``name``."""
+    value = np.asarray(value, dtype=np.float64)
     if name == "speed" or name in _POSITIVE:
-        return value > 0
-    if name == "angle_deg":
-        return abs(value) < 90
-    if name in _NON_NEGATIVE:
-        return value >= 0
-    return True  # omega0: any finite spin
+        allowed = value > 0
+    elif name == "angle_deg":
+        allowed = np.abs(value) < 90
+    elif name in _NON_NEGATIVE:
+        allowed = value >= 0
+    else:
+        allowed = True  # omega0: any finite spin
+    return np.isfinite(value) & allowed
 
 
 def check_impact_value(
@@ -213,10 +220,42 @@ def check_impact_value(
 # ---------------------------------------------------------------------------------------------
 # Generic CSV reading
 
+# A number as the readers accept it: Python's float syntax less its rarities (underscores,
+# non-ASCII digits). pyarrow converts exactly these (correctly rounded, as float() does), so
+# one pattern tells which field is wrong before any conversion.
+_NUMBER = r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|(?i:nan|inf|infinity))"
+_NUMBER_RE = re.compile(_NUMBER)
 
-@dataclass(frozen=True)
+
+def _number_problem(text: str, *, finite: bool = True) -> str | None:
+    """What is wrong with ``text`` as a (finite) number, or ``None``."""
+    if not text:
+        return "empty value (a number is required)"
+    if not _NUMBER_RE.fullmatch(text):
+        return f"not a number: {text!r}"
+    if finite and not math.isfinite(float(text)):
+        return f"value must be finite, got {text!r}"
+    return None
+
+
+def parse_number(
+    text: str, *, path=None, line=None, column=None, error: type[TableError] = TableError
+) -> float:
+    """Parse one field (surrounding whitespace ignored) as a finite float.
+
+    Raises:
+        TableError: (or ``error``) the field is empty, not a number, NaN or infinite.
+    """
+    text = text.strip()
+    problem = _number_problem(text)
+    if problem:
+        raise located_error(error, path, line, column, problem)
+    return float(text)
+
+
+@dataclass(frozen=True, eq=False)
 class CsvRows:
-    """The raw content of a commented CSV file.
+    """The content of a commented CSV file, every field as text.
 
     Attributes:
         path: the file, as given.
@@ -224,104 +263,138 @@ class CsvRows:
             following space (blank lines among them kept as empty strings).
         header: the column names, stripped.
         header_line: line number of the header.
-        rows: ``(line number, fields)`` for every data line, fields stripped.
+        lines: line number of each data row (int64).
+        fields: ``{column: pyarrow string array}``, one stripped field per data row.
+        error: the exception class that :meth:`numbers` raises.
     """
 
     path: str
     preamble: tuple[str, ...]
     header: tuple[str, ...]
     header_line: int
-    rows: tuple[tuple[int, tuple[str, ...]], ...]
+    lines: np.ndarray
+    fields: dict[str, pa.Array]
+    error: type[TableError] = TableError
 
+    def __len__(self) -> int:
+        return self.lines.size
 
-def _split(line: str) -> tuple[str, ...]:
-    # The csv module handles quoted fields (e.g. a status text with a comma) correctly.
-    return tuple(f.strip() for f in next(csv.reader([line])))
+    def check_header(self, allowed: Sequence[str], required: Sequence[str]) -> None:
+        """Refuse a header column not in ``allowed`` and a ``required`` one that is missing."""
+        for name in self.header:
+            if name not in allowed:
+                problem = f"unknown column; allowed columns: {', '.join(allowed)}"
+                raise located_error(self.error, self.path, self.header_line, name, problem)
+        for name in required:
+            if name not in self.header:
+                problem = "required column missing from the header"
+                raise located_error(self.error, self.path, self.header_line, name, problem)
+
+    def records(self) -> Iterator[tuple[int, dict[str, str]]]:
+        """``(line number, {column: field})`` for every data row, in file order."""
+        columns = zip(*(self.fields[name].to_pylist() for name in self.header), strict=True)
+        for line, values in zip(self.lines.tolist(), columns, strict=True):
+            yield line, dict(zip(self.header, values, strict=True))
+
+    def numbers(self, name: str, *, empty_as_nan: bool = False) -> np.ndarray:
+        """Column ``name`` as float64, converted by pyarrow.
+
+        By default every field must be a finite number; with ``empty_as_nan`` an empty field
+        reads as NaN, and ``nan`` and ``inf`` are accepted.
+
+        Raises:
+            TableError: (or :attr:`error`) at the first field that does not qualify.
+        """
+        texts = self.fields[name]
+        if empty_as_nan:
+            texts = pc.if_else(pc.equal(texts, ""), "nan", texts)
+        ok = pc.match_substring_regex(texts, f"^(?:{_NUMBER})$")
+        values = np.array(pc.cast(pc.if_else(ok, texts, "nan"), pa.float64()))  # writable
+        ok = np.asarray(ok) & (empty_as_nan | np.isfinite(values))
+        if not ok.all():
+            i = int(np.argmin(ok))
+            problem = _number_problem(texts[i].as_py(), finite=not empty_as_nan)
+            raise located_error(self.error, self.path, int(self.lines[i]), name, problem)
+        return values
 
 
 def read_csv_rows(path, *, error: type[TableError] = TableError) -> CsvRows:
-    """Read a CSV file with ``#`` comments into a header and numbered rows.
+    """Read a CSV file with ``#`` comments into a header and numbered rows of text.
 
-    Checks only the structure: a header exists, its names are non-empty and distinct, and every
-    data row has as many fields as the header.
-
-    Arguments:
-        path: the file.
-        error: the exception class to raise.
-
-    Returns:
-        CsvRows: the header, the rows with their line numbers, and the leading comments.
+    The lines are first sorted into comments, blank lines and records (the header and data
+    rows), so that each row keeps the line number an editor shows; pyarrow parses the records.
+    Checks only the structure: UTF-8 text (a byte-order mark is allowed), a header with
+    non-empty distinct names, as many fields in every row as in the header, and no quoted field
+    left open at the end of its line.
 
     Raises:
-        TableError: (or ``error``) no header, an empty or repeated column name, or a row with
-            the wrong number of fields.
+        TableError: (or ``error``) one of these problems, with its line.
         OSError: the file cannot be read.
     """
-    preamble: list[str] = []
-    header: tuple[str, ...] | None = None
-    header_line = 0
-    rows: list[tuple[int, tuple[str, ...]]] = []
-    # utf-8-sig: spreadsheet programs often put a byte-order mark in front of the header.
-    # newline=None: \r\n and \r count as one line end, so line numbers match an editor's.
-    with open(path, encoding="utf-8-sig", newline=None) as f:
-        for number, raw in enumerate(f, start=1):
-            text = raw.strip()
-            if text.startswith("#"):
-                if header is None:
-                    preamble.append(text[1:].removeprefix(" "))
-                continue
-            if not text:
-                if header is None and preamble:
-                    preamble.append("")
-                continue
-            fields = _split(text)
-            if header is None:
-                header, header_line = fields, number
-                for name in header:
-                    if not name:
-                        raise located_error(
-                            error, path, number, None, "empty column name in the header"
-                        )
-                    if header.count(name) > 1:
-                        raise located_error(
-                            error, path, number, name, "column named twice in the header"
-                        )
-                continue
-            if len(fields) != len(header):
-                raise located_error(
-                    error,
-                    path,
-                    number,
-                    None,
-                    f"expected {len(header)} fields ({', '.join(header)}), found {len(fields)}",
-                )
-            rows.append((number, fields))
-    if header is None:
-        raise located_error(
-            error, path, None, None, "no header row (the file is empty or all comments)"
-        )
+    data = Path(path).read_bytes()
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise located_error(error, path, line, None, "not UTF-8 text") from None
+    # \r\n and \r end a line too, as in an editor.
+    lines = [line.strip() for line in text.replace("\r\n", "\n").replace("\r", "\n").split("\n")]
+    # The records (the header and the data rows), by index in lines: what pyarrow reads.
+    records = [i for i, line in enumerate(lines) if line and not line.startswith("#")]
+    if not records:
+        problem = "no header row (the file is empty or all comments)"
+        raise located_error(error, path, None, None, problem)
+    start = next(i for i, line in enumerate(lines) if line)  # blank lines before are no preamble
+    preamble = [line[1:].removeprefix(" ") for line in lines[start : records[0]]]
     while preamble and not preamble[-1]:
         preamble.pop()
-    return CsvRows(str(path), tuple(preamble), header, header_line, tuple(rows))
 
+    def fail(record: int, column, problem: str) -> TableError:
+        return located_error(error, path, records[record - 1] + 1, column, problem)
 
-def parse_number(
-    text: str, *, path=None, line=None, column=None, error: type[TableError] = TableError
-) -> float:
-    """Parse one field as a finite float.
+    ragged = []  # (record, fields found, holds a line end) of the rows pyarrow skips
 
-    Raises:
-        TableError: (or ``error``) the field is empty, not a number, NaN or infinite.
-    """
-    if not text:
-        raise located_error(error, path, line, column, "empty value (a number is required)")
+    def skip(row) -> str:
+        ragged.append((row.number, row.actual_columns, "\n" in row.text))
+        return "skip"
+
     try:
-        value = float(text)
-    except ValueError:
-        raise located_error(error, path, line, column, f"not a number: {text!r}") from None
-    if not math.isfinite(value):
-        raise located_error(error, path, line, column, f"value must be finite, got {text!r}")
-    return value
+        table = pv.read_csv(
+            io.BytesIO("\n".join([lines[i] for i in records] + [""]).encode()),
+            # One thread, so that pyarrow numbers the rows it skips (from 1, as records are).
+            read_options=pv.ReadOptions(autogenerate_column_names=True, use_threads=False),
+            parse_options=pv.ParseOptions(invalid_row_handler=skip),
+            # Every field as text (a line of n characters holds at most n + 1 fields).
+            convert_options=pv.ConvertOptions(
+                column_types={f"f{i}": pa.string() for i in range(len(lines[records[0]]) + 1)}
+            ),
+        )
+    except pa.ArrowInvalid as exc:  # pyarrow finds no end to the first record
+        raise fail(1, None, f"the header is not a complete CSV line (pyarrow: {exc})") from None
+    columns = [column.combine_chunks() for column in table.columns]
+    names = [column[0].as_py() for column in columns]
+    header = tuple(name.strip() for name in names)
+    for name, raw in zip(header, names, strict=True):
+        if not name or "\n" in raw:
+            raise fail(1, None, f"empty or unclosed column name in the header: {raw!r}")
+        if header.count(name) > 1:
+            raise fail(1, name, "column named twice in the header")
+    # A quote left open swallows line ends. Up to the first field holding one and the first
+    # skipped row, rows and records match one to one: report whichever comes first.
+    unclosed = "a quoted field is not closed on its line"
+    expected = f"expected {len(header)} fields ({', '.join(header)})"
+    problems = [
+        (record, unclosed if open_quote else f"{expected}, found {found}")
+        for record, found, open_quote in ragged[:1]
+    ]
+    spans = np.flatnonzero(np.any([pc.match_substring(c, "\n") for c in columns], axis=0))
+    problems += [(int(i) + 1, unclosed) for i in spans[:1]]
+    if problems:
+        record, problem = min(problems, key=lambda p: p[0])  # a skipped row first on a tie
+        raise fail(record, None, problem)
+    fields = {n: pc.utf8_trim_whitespace(c[1:]) for n, c in zip(header, columns, strict=True)}
+    numbers = readonly_array(np.add(records[1:], 1), np.int64)  # the line of each data row
+    return CsvRows(str(path), tuple(preamble), header, records[0] + 1, numbers, fields, error)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -368,6 +441,10 @@ class ImpactTable:
     def __post_init__(self):
         # Frozen dataclass: normalize fields through object.__setattr__.
         put = object.__setattr__
+
+        def fail(line, column, problem: str) -> TableError:
+            return located_error(TableError, self.source or None, line, column, problem)
+
         speed = readonly_array(self.speed)
         n = speed.size
         omega0 = np.zeros(n) if self.omega0 is None else self.omega0
@@ -379,24 +456,17 @@ class ImpactTable:
         overrides = {}
         for name, column in self.overrides.items():
             if name not in IMPACT_PARAMETER_COLUMNS:
-                raise located_error(
-                    TableError,
-                    self.source or None,
-                    None,
-                    name,
-                    f"unknown parameter; allowed: {', '.join(IMPACT_PARAMETER_COLUMNS)}",
-                )
+                allowed = ", ".join(IMPACT_PARAMETER_COLUMNS)
+                raise fail(None, name, f"unknown parameter; allowed: {allowed}")
             overrides[name] = values[name] = readonly_array(column)
         lines = None if self.lines is None else readonly_array(self.lines, np.int64)
         for name, column in values.items():
             if column.ndim != 1 or column.size != n:
-                raise located_error(TableError, self.source or None, None, name, "length differs")
+                raise fail(None, name, "length differs")
         if lines is not None and lines.size != n:
             raise TableError(f"ImpactTable: {lines.size} line numbers for {n} rows")
         if n == 0:
-            raise located_error(
-                TableError, self.source or None, None, None, "the table has no rows"
-            )
+            raise fail(None, None, "the table has no rows")
         columns = tuple(self.columns)
         if not columns:
             given_spin = () if self.omega0 is None else ("omega0",)
@@ -409,17 +479,12 @@ class ImpactTable:
                 f"and the overrides {tuple(overrides)}, each once"
             )
         for name, column in values.items():
-            for i, value in enumerate(column.tolist()):
-                if not _in_range(name, value):
-                    line = None if lines is None else int(lines[i])
-                    where = "" if lines is not None else f"row {i}: "
-                    raise located_error(
-                        TableError,
-                        self.source or None,
-                        line,
-                        name,
-                        f"{where}value {value!r} out of range: {allowed_range(name)}",
-                    )
+            bad = np.flatnonzero(~_in_range(name, column))
+            if bad.size:
+                i = int(bad[0])
+                line, where = (None, f"row {i}: ") if lines is None else (int(lines[i]), "")
+                problem = f"value {float(column[i])!r} out of range: {allowed_range(name)}"
+                raise fail(line, name, where + problem)
         put(self, "speed", speed)
         put(self, "angle_deg", values["angle_deg"])
         put(self, "omega0", values["omega0"])
@@ -458,38 +523,19 @@ def read_impacts(path) -> ImpactTable:
         OSError: the file cannot be read.
     """
     table = read_csv_rows(path)
-    allowed = IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS
-    for name in table.header:
-        if name not in allowed:
-            raise located_error(
-                TableError,
-                path,
-                table.header_line,
-                name,
-                f"unknown column; allowed columns: {', '.join(allowed)}",
-            )
-    for name in ("speed", "angle_deg"):
-        if name not in table.header:
-            raise located_error(
-                TableError, path, table.header_line, name, "required column missing from the header"
-            )
-    if not table.rows:
+    table.check_header(IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS, ("speed", "angle_deg"))
+    if not len(table):
         raise located_error(
             TableError, path, table.header_line, None, "no data rows after the header"
         )
-    values: dict[str, list[float]] = {name: [] for name in table.header}
-    for line, fields in table.rows:
-        for name, text in zip(table.header, fields, strict=True):
-            value = parse_number(text, path=path, line=line, column=name)
-            check_impact_value(name, value, path=path, line=line)
-            values[name].append(value)
+    values = {name: table.numbers(name) for name in table.header}
     return ImpactTable(
         speed=values["speed"],
         angle_deg=values["angle_deg"],
         omega0=values.get("omega0"),
         overrides={k: v for k, v in values.items() if k in IMPACT_PARAMETER_COLUMNS},
         columns=table.header,
-        lines=[line for line, _ in table.rows],
+        lines=table.lines,
         source=str(path),
     )
 
@@ -539,16 +585,16 @@ def atomic_write_bytes(path, data: bytes) -> None:
             os.unlink(temp)
         raise
     # Persist the rename itself; best effort, since not every platform can fsync a directory.
-    try:
+    with contextlib.suppress(OSError):
         dir_fd = os.open(path.parent, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dir_fd)
-    except OSError:
-        pass
-    finally:
-        os.close(dir_fd)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+
+
+def _bad_reason(reason: str) -> str:
+    return f"invalid failure reason {reason!r}; allowed: empty, {', '.join(FAILURE_REASONS)}"
 
 
 def _format_float(value: float) -> str:
@@ -588,53 +634,50 @@ def write_results(
         inputs: the impact table that was simulated (its :attr:`ImpactTable.columns` are
             repeated), or an ordered mapping ``{input column: values}``.
         results: ``{name: values}`` with exactly the keys of :data:`RESULT_COLUMNS`: ``status``
-            holds strings, the others numbers (NaN for "not applicable", written empty).
+            holds strings, ``failure_reason`` empty strings or keys of :data:`FAILURE_REASONS`,
+            the others numbers (NaN for "not applicable", written empty).
         comments: lines written first, each prefixed with ``# `` (e.g. the scene used).
 
     Raises:
         TableError: a result column missing or unknown, an input column named like a result
-            column, lengths that differ, non-numeric values, or an empty or multi-line status.
+            column, lengths that differ, non-numeric values, an empty or multi-line status, or
+            an unknown failure reason.
             Nothing is written then: the whole text is built before the file is touched.
         OSError: the file cannot be written (no partial file is left).
     """
+
+    def fail(column, problem: str) -> TableError:
+        return located_error(TableError, path, None, column, problem)
+
     columns = inputs.as_columns() if isinstance(inputs, ImpactTable) else dict(inputs)
     missing = [name for name in RESULT_COLUMNS if name not in results]
     unknown = [name for name in results if name not in RESULT_COLUMNS]
     if missing or unknown:
-        raise located_error(
-            TableError,
-            path,
-            None,
+        raise fail(
             None,
             f"result columns missing: {missing or 'none'}; unknown: {unknown or 'none'}; "
             f"expected: {', '.join(RESULT_COLUMNS)}",
         )
     clash = [name for name in columns if name in RESULT_COLUMNS]
     if clash:
-        raise located_error(
-            TableError, path, None, clash[0], "input column named like a result column"
-        )
+        raise fail(clash[0], "input column named like a result column")
 
     table: dict[str, list] = {name: _numeric_column(name, v, path) for name, v in columns.items()}
-    status = [str(s) for s in np.asarray(results["status"], dtype=object).ravel()]
-    for i, s in enumerate(status):
-        # A status must read back as one field of one line, and not as a comment.
-        if not s or s != s.strip() or s.startswith("#") or not s.isprintable():
-            raise located_error(TableError, path, None, "status", f"row {i}: invalid status {s!r}")
-    table["status"] = status
-    reasons = [str(s) for s in np.asarray(results["failure_reason"], dtype=object).ravel()]
-    for i, s in enumerate(reasons):
-        if s and s not in FAILURE_REASONS:
-            raise located_error(
-                TableError, path, None, "failure_reason", f"row {i}: invalid reason {s!r}"
-            )
-    for name in RESULT_COLUMNS[1:]:
-        if name not in TEXT_RESULT_COLUMNS:
-            table[name] = _numeric_column(name, results[name], path)
-    table["failure_reason"] = reasons
+    for name in RESULT_COLUMNS:
+        table[name] = (
+            [str(s) for s in np.asarray(results[name], dtype=object).ravel()]
+            if name in TEXT_RESULT_COLUMNS
+            else _numeric_column(name, results[name], path)
+        )
     lengths = {name: len(v) for name, v in table.items()}
     if len(set(lengths.values())) != 1:
-        raise located_error(TableError, path, None, None, f"columns differ in length: {lengths}")
+        raise fail(None, f"columns differ in length: {lengths}")
+    for i, (s, reason) in enumerate(zip(table["status"], table["failure_reason"], strict=True)):
+        # A status must read back as one field of one line, and not as a comment.
+        if not s or s != s.strip() or s.startswith("#") or not s.isprintable():
+            raise fail("status", f"row {i}: invalid status {s!r}")
+        if reason and reason not in FAILURE_REASONS:
+            raise fail("failure_reason", f"row {i}: {_bad_reason(reason)}")
 
     buffer = io.StringIO()
     for comment in comments:
@@ -655,11 +698,13 @@ def read_results(path) -> dict[str, np.ndarray]:
 
     Returns:
         dict: ``{column: array}`` in file order: the input columns and the numeric result
-        columns as float64 (empty fields as NaN), ``status`` as an array of str.
+        columns as float64 (empty fields as NaN), ``status`` and ``failure_reason`` as arrays
+        of str. Files written before ``failure_reason`` existed have no such key.
 
     Raises:
-        TableError: the header does not end with :data:`RESULT_COLUMNS`, or a numeric field is
-            not a number.
+        TableError: the header does not end with :data:`RESULT_COLUMNS` (with or without
+            ``failure_reason``), a numeric field is not a number, a failure reason is unknown,
+            or the file is not well-formed (see :func:`read_csv_rows`).
         OSError: the file cannot be read.
     """
     table = read_csv_rows(path)
@@ -667,29 +712,16 @@ def read_results(path) -> dict[str, np.ndarray]:
     expected = RESULT_COLUMNS if table.header[-1:] == ("failure_reason",) else RESULT_COLUMNS[:-1]
     n_inputs = len(table.header) - len(expected)
     if n_inputs < 0 or table.header[n_inputs:] != expected:
-        raise located_error(
-            TableError,
-            path,
-            table.header_line,
-            None,
-            f"the header must end with the result columns {', '.join(RESULT_COLUMNS)}",
-        )
-    columns: dict[str, np.ndarray] = {}
-    for j, name in enumerate(table.header):
-        texts = [fields[j] for _, fields in table.rows]
-        if name in TEXT_RESULT_COLUMNS:
-            columns[name] = np.array(texts, dtype=str)
-            continue
-        values = []
-        for (line, _), text in zip(table.rows, texts, strict=True):
-            if not text:
-                values.append(math.nan)
-                continue
-            try:
-                values.append(float(text))
-            except ValueError:
-                raise located_error(
-                    TableError, path, line, name, f"not a number: {text!r}"
-                ) from None
-        columns[name] = np.array(values, dtype=np.float64)
+        problem = f"the header must end with the result columns {', '.join(RESULT_COLUMNS)}"
+        raise located_error(TableError, path, table.header_line, None, problem)
+    columns = {
+        name: np.array(table.fields[name].to_pylist(), dtype=str)
+        if name in TEXT_RESULT_COLUMNS
+        else table.numbers(name, empty_as_nan=True)
+        for name in table.header
+    }
+    bad = np.flatnonzero(~np.isin(columns.get("failure_reason", []), ["", *FAILURE_REASONS]))
+    if bad.size:
+        problem = _bad_reason(columns["failure_reason"][bad[0]])
+        raise located_error(TableError, path, int(table.lines[bad[0]]), "failure_reason", problem)
     return columns

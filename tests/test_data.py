@@ -139,6 +139,38 @@ def test_wide_details(tmp_path):
     assert obs.source.endswith("obs.csv")
 
 
+def test_crlf_bom_and_quoted_fields_read_like_plain_text(tmp_path):
+    plain = load_observations(write(tmp_path, WIDE, "plain.csv"))
+    lines = WIDE.splitlines()
+    # quotes (right after the comma: a quote after a space is text, as in Python's csv module)
+    lines[2] = '"speed", angle_deg,"omega0", friction, cor_n, sigma_cor_n, omega_out,"status"'
+    lines[4] = '1.0,"30" ,0,0.3,0.91,0.01,"",rebound'
+    path = tmp_path / "excel.csv"
+    path.write_bytes(("\ufeff" + "\r\n".join(lines) + "\r\n").encode())
+    fancy = load_observations(path)
+    assert fancy.provenance == plain.provenance
+    for name in ("observable", "value", "sigma", "line", "speed", "angle_deg", "impact_index"):
+        np.testing.assert_array_equal(getattr(fancy, name), getattr(plain, name), err_msg=name)
+
+
+@pytest.mark.parametrize(
+    ("content", "line", "problem"),
+    [
+        (b'# c\nspeed,angle_deg,cor_n\n1,0,0.9\n# c\n1,0,"0.8\n', 5, "not closed"),
+        (b"# c\nspeed,angle_deg,cor_n\n1,0,0.9\n1,0,\xe9\n", 4, "not UTF-8"),
+        (b"# c\r\n\r\nspeed,angle_deg,cor_n\r\n1,0,0.9,1\r\n", 4, "found 4"),
+    ],
+)
+def test_malformed_files_are_located_data_errors(tmp_path, content, line, problem):
+    path = tmp_path / "obs.csv"
+    path.write_bytes(content)
+    with pytest.raises(DataError) as info:
+        load_observations(path)
+    assert info.value.line == line
+    assert str(info.value).startswith(f"{path}, line {line}: ")
+    assert problem in str(info.value)
+
+
 def test_every_observable_is_accepted_in_both_layouts(tmp_path):
     wide = "speed,angle_deg," + ",".join(OBSERVABLES) + "\n1,20," + ",".join(["1"] * 6) + "\n"
     long = "speed,angle_deg,observable,value\n" + "".join(f"1,20,{n},1\n" for n in OBSERVABLES)
