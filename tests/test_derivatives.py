@@ -180,6 +180,7 @@ def test_batch_does_not_change_a_lane(table1):
         np.testing.assert_allclose(jac_alone[k][0], jac[k][0], rtol=1e-12, atol=0, err_msg=k)
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_sharded_batch_equals_single_device(tmp_path):
     """Split over two host devices, each lane gives the same bits as on one device."""
     script = tmp_path / "shard.py"
@@ -205,6 +206,7 @@ def test_sharded_batch_equals_single_device(tmp_path):
     )
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_grad_jacfwd_jacrev_agree(table1):
     speed, angle, omega0 = np.array([1.2, 0.8]), np.array([25.0, -40.0]), np.array([0.0, 8000.0])
     inputs = ("f0", "C_H", "friction", "angle_deg")

@@ -37,6 +37,7 @@ def run(devices):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_sharded_batch_equals_single_device():
     one, three = run(1), run(3)
     assert one["devices"] == 1 and three["devices"] == 3

@@ -164,6 +164,7 @@ def test_rank_deficient_fit_names_the_parameters():
     assert d["undetermined"] and "f0" in d["undetermined"][0]
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_capture_start_walks_out_or_exits_3(micro, cache, near_fit, tmp_path):
     """The issue's case: from C_A=0.05 C_H=2 f0=2000 the model captures every impact."""
     objective = fitting.Objective(jaximpact.load_scene(), micro["data"], NAMES)

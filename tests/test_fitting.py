@@ -58,6 +58,7 @@ def kharaz25(tmp_path_factory):
     )
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_synthetic_recovery_of_C_A_C_H_f0(tmp_path):
     scene = jaximpact.table1_scene()
     speed = np.geomspace(0.3, 5.0, 24)
@@ -86,6 +87,7 @@ def _dummy_obs(tmp_path):
     return _write_long(tmp_path / "dummy.csv", [1.0], [0.0], ["cor_n"], [0.7])
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_objective_gradient_matches_finite_differences(tmp_path):
     # Finite differences of an adaptive solve are only as good as its tolerance (as in
     # test_simulate): tight tolerances, a relative step of 1e-3.
@@ -109,6 +111,7 @@ def test_objective_gradient_matches_finite_differences(tmp_path):
     np.testing.assert_allclose(grad, fd, rtol=3e-3, atol=1e-3 * np.max(np.abs(fd)))
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_kharaz_friction_via_cli(tmp_path, kharaz25, capsys):
     scene = tmp_path / "kharaz.toml"
     scene.write_text(KHARAZ_SCENE_TOML)
@@ -144,6 +147,7 @@ def test_lbfgs_agrees_with_lm_on_kharaz(kharaz25):
     assert 0.085 <= result.values["friction"] <= 0.105
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_iteration_limit_reports_not_converged(tmp_path, kharaz25):
     result = fitting.fit(
         fitting.kharaz2001_scene(friction=0.3),  # two steps of at most e in logit at least

@@ -548,3 +548,48 @@ def test_energy_ledger_closes_and_losses_are_dissipative(rolling_moments, fricti
     if rolling_moments == "analytical":
         # The partial ring passes energy from the spin to the normal motion at some states.
         assert np.any(losses["loss_adhesion_damping"] < 0)
+
+
+@pytest.mark.parametrize("rotation", [True, False])
+def test_shell_friction_opposes_slip_stops_at_rolling_and_closes_the_ledger(rotation):
+    # The closed-form friction of the contact shell (jaximpact._simulate._shell_friction).
+    from jaximpact._simulate import _shell_friction
+
+    terms = _dynamics.Terms(
+        tangential=True,
+        rotation=rotation,
+        adhesion=True,
+        rolling_moments="analytical",
+        friction_load="net",
+        slip_width=1e-3,
+        ring_width=1e-8,
+        contact_floor=1e-4,
+    )
+    g = rng(11)
+    count = 400
+    w = g.uniform(-1, 1, count) * 3.0 / SCALED_RADIUS if rotation else np.zeros(count)
+    slip = g.normal(size=count) * 10.0 ** g.uniform(-9, 0, count)
+    y = {"vt": jnp.asarray(SCALED_RADIUS * w + slip), "w": jnp.asarray(w)}
+    if not rotation:
+        del y["w"]
+    shell = {"time": jnp.asarray(10.0 ** g.uniform(-5, -1, count))}  # up to slow separations
+    ndot = jnp.asarray(g.choice([-1.0, 1.0], count) * 1e-4 / shell["time"])
+    out = jax.vmap(lambda yy, s, nd: _shell_friction(terms, SCALED, yy, s, nd))(y, shell, ndot)
+    w1 = np.asarray(out["w"]) if rotation else np.zeros(count)
+    new_slip = np.asarray(out["vt"]) - SCALED_RADIUS * w1
+    # The slip shrinks toward zero and never changes sign (the impulse stops at rolling).
+    assert np.all(np.abs(new_slip) <= np.abs(slip) * (1 + 1e-12) + 1e-15)
+    assert np.all(new_slip * slip >= -1e-24)
+    stopped = np.abs(new_slip) < 1e-9 * np.abs(slip)
+    assert 0 < np.sum(stopped) < count  # both regimes occur
+    # The friction loss is the kinetic energy taken, and it is never negative.
+    inertia = float(SCALED.inertia) if rotation else 0.0
+    vt0 = np.asarray(y["vt"])
+    ke = lambda vt, ww: 0.5 * vt**2 + 0.5 * inertia * ww**2  # noqa: E731
+    change = ke(np.asarray(out["vt"]), w1) - ke(vt0, w)
+    loss = np.asarray(out["loss_friction"])
+    assert np.all(loss >= -1e-18)
+    assert np.max(np.abs(loss + change) / (1e-30 + np.abs(vt0) * np.abs(slip))) < 1e-9
+    # Sliding far from rolling: the impulse is f times the load integral over the shell time.
+    far = np.abs(slip) > 1.0
+    assert np.any(far & ~stopped)

@@ -43,6 +43,7 @@ def test_stored_notebook_is_clean(path):
     assert path.stat().st_size < 1_500_000
 
 
+@pytest.mark.slow  # about a minute each: CI's second step
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=NAMES)
 def test_notebook_executes(path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")

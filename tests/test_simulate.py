@@ -110,6 +110,7 @@ def test_paper_figure5_spin_directions(table1):
     assert 20e-9 < float(res.roll_time[0]) < 300e-9
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_paper_figure3_small_lambda_changes_little(table1):
     # Fig. 3 (log scale): the final spin does not change visibly for lambda < 1e-7 N m.
     w0 = math.radians(1e6)
@@ -206,6 +207,7 @@ def test_float32_close_to_float64(table1):
 TIGHT = {"rtol": 1e-11, "atol": 1e-13}
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_gradients_match_finite_differences(table1):
     table1 = table1.replace(solver=TIGHT)
 
@@ -225,6 +227,7 @@ def test_gradients_match_finite_differences(table1):
         assert float(g[i]) == pytest.approx(float(fd), rel=2e-3, abs=5e-6)
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_gradient_wrt_impact_inputs(table1):
     table1 = table1.replace(solver=TIGHT)
     f = lambda v, a: ji.simulate(table1, v, a, 1e4).cor_n
@@ -239,6 +242,7 @@ def test_gradient_wrt_impact_inputs(table1):
         assert float(g) == pytest.approx(float(fd), rel=2e-3, abs=1e-7)
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_works_under_jit_and_vmap(table1):
     jitted = jax.jit(lambda s, v: ji.simulate(s, v, 30.0, 0.0).cor_n)
     direct = ji.simulate(table1, jnp.array([1.0, 2.0]), 30.0, 0.0).cor_n

@@ -153,6 +153,7 @@ def test_parquet_impacts_give_the_same_results(impacts, reference, tmp_path):
 # (2) Kill and resume
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_killed_sweep_resumes_to_the_uninterrupted_result(impacts, reference, tmp_path):
     out = tmp_path / "results.parquet"
     args = ["--impacts", str(impacts), "-o", str(out), "--chunk-size", str(CHUNK)]
@@ -191,6 +192,7 @@ def test_rerunning_a_finished_sweep_does_nothing(impacts, reference, tmp_path):
 # (3) Several devices, several processes
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_four_forced_host_devices_match_one_device(impacts, reference, tmp_path):
     flags = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
     env = {"XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
@@ -345,6 +347,7 @@ def test_read_sweep_rejects_what_is_not_a_sweep(tmp_path):
         read_sweep(tmp_path)
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_two_processes_with_jax_distributed(tmp_path):
     """Two local processes under ``--distributed`` (CPU): each writes its share and manifest."""
     import socket

@@ -112,3 +112,45 @@ def test_captured_impacts_would_not_have_left():
             t_max=200 * ref.simulate_impact(params, v, 20.0, w).contact_time,
         )
         assert on.status != "rebound"
+
+
+# The float64 default bound claimed in README ("Accuracy and precision"), measured on
+# benchmarks/accuracy_catalogue.py: cor_n, vt_out/speed and omega_out r/speed of rebounds
+# (also just above the capture speed) and vt_out, omega_out of captures.
+DEFAULT_BOUND = 1e-6
+
+
+def test_default_bound_near_capture():
+    # Table 1 and the issue-13 scene (Table 1 with f0 = 154.89 N/m: capture speed 0.0230 m/s
+    # at -24 deg, 74,925 rad/s), at speeds from 30 % below to 30 % above the capture speed of
+    # the impact's angle and spin, and the issue's point 0.0232 m/s. One batch (f0 per impact).
+    cases = [(154.89, -24.0, 74925.0), (325.0, 0.0, 0.0), (325.0, 50.0, -3e4)]
+    deltas = np.array([-0.3, -0.03, 0.003, 0.01, 0.03, 0.1, 0.3])
+    f0, speed, angle, omega0 = [], [], [], []
+    for f, a, w in cases:
+        v_c = ref.capture_speed(ref.table1_params(f0=f), a, w, lo=1e-3, hi=5.0, rel_tol=1e-7)
+        vs = list(v_c * (1 + deltas)) + ([0.0232] if f != 325.0 else [])
+        f0 += [f] * len(vs)
+        speed += vs
+        angle += [a] * len(vs)
+        omega0 += [w] * len(vs)
+    f0, speed, angle, omega0 = map(np.array, (f0, speed, angle, omega0))
+    scene = ji.table1_scene().replace(contact={"f0": f0})
+    got = ji.simulate(scene, speed, angle, omega0)
+    status = got.columns()["status"]
+    r = float(scene.particle.radius)
+    worst = 0.0
+    for i in range(len(speed)):
+        params = ref.table1_params(f0=float(f0[i]))
+        exact = ref.simulate_impact(params, speed[i], angle[i], omega0[i], rtol=1e-13, atol=1e-17)
+        assert status[i] == exact.status, (speed[i], angle[i], omega0[i])
+        errors = [
+            abs(float(got.vt_out[i]) - exact.vt_out) / speed[i],
+            abs(float(got.omega_out[i]) - exact.omega_out) * r / speed[i],
+        ]
+        if exact.status == "rebound":
+            v_n = speed[i] * math.cos(math.radians(angle[i]))
+            errors.append(abs(float(got.cor_n[i]) - exact.vn_out / v_n))
+        worst = max(worst, *errors)
+    assert worst < DEFAULT_BOUND
+    assert np.sum(status == "captured") >= 6 and np.sum(status == "rebound") >= 12
