@@ -166,7 +166,10 @@ class Solver(eqx.Module):
     - `dt`: step of the fixed-step method, in units of the Hertz time ``n*/v_n``.
     - `slip_width`: width of the slip-sign regularization, as a fraction of the normal speed;
       ``None``: 1e-3 in float64, 3e-3 in float32 (kept well above float32's rounding noise).
-    - `ring_width`: width of the adhesion-ring separation switch, fraction of the normal speed.
+    - `ring_width`: width of the adhesion-ring separation switch, fraction of the normal speed
+      (1e-8: its error is about ``ring_width / cor_n``, which near the capture speed was the
+      largest error left at 1e-6; the ring law's slope is bounded, so a narrow switch costs no
+      steps).
     - `max_steps`: step limit per impact; an impact that reaches it is reported as failed.
     - `outputs`: ``"full"`` (default) or ``"rebound"``: only status, rebound velocities, spin,
       angles and contact time (energy ledger, ``max_overlap`` and ``roll_time`` are NaN);
@@ -180,7 +183,7 @@ class Solver(eqx.Module):
     atol: float | None = eqx.field(static=True, default=None)
     dt: float = eqx.field(static=True, default=0.01)
     slip_width: float | None = eqx.field(static=True, default=None)
-    ring_width: float = eqx.field(static=True, default=1e-6)
+    ring_width: float = eqx.field(static=True, default=1e-8)
     max_steps: int = eqx.field(static=True, default=4096)
     stiffness_limit: float = eqx.field(static=True, default=200.0)
     outputs: str = eqx.field(static=True, default="full")

@@ -9,6 +9,7 @@ import optimistix as optx
 
 from . import _dynamics as dyn
 from ._results import ImpactResult, Status
+from ._safe import smooth_sign_flat
 from ._scene import INERTIA_FACTOR, Scene, SceneError, _is_concrete, check_impact
 from ._solvers import (
     CONTACT_FLOOR,
@@ -184,6 +185,44 @@ def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
     return shell
 
 
+def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict, ndot) -> dict:
+    """Friction in a contact shell, in closed form: the tangential impulse there.
+
+    The shell is crossed in ``shell["time"]`` at about constant normal speed, so the impulse of
+    the friction load is ``f int N dt = f |int F_n dn| time / floor``, with the work integrals
+    of the Hertz force, its damping, the ring adhesion and its (spin-free) damping. Near the
+    capture speed adhesion dominates the load there and the sphere leaves slowly: ignoring this
+    impulse left errors of up to ~5e-5 in ``vt_out/speed`` and ``omega_out r/speed`` (it grows
+    like ``floor^1.5 / cor_n``). The impulse slides the contact point (the regularized sign of
+    the slip, as in the ODE) and stops where the slip would reach zero; rolling moments are
+    left out (their share is ``O(floor^2.5)``, or ``O(lambda C_A w)`` times the friction's).
+    Returns ``vt``, ``w`` after the shell and the friction loss there (which closes the ledger
+    exactly: minus the change of tangential and rotational kinetic energy).
+    """
+    eps = terms.contact_floor
+    sr = jnp.sqrt(p.radius)
+    hertz = 0.4 * p.K * sr * eps**2.5
+    if terms.friction_load == "net":
+        load = -hertz * (1.0 + p.C_H * ndot)
+        if terms.adhesion:
+            adhesion = (4.0 / 3.0) * jnp.pi * p.f0 * sr * eps**1.5
+            load = load + adhesion * (1.0 + p.C_A * jnp.maximum(-ndot, 0.0))
+        load = jnp.abs(load)
+    else:
+        load = hertz
+    impulse = p.friction * load * shell["time"] / eps
+    vt = y["vt"]
+    w = y["w"] if terms.rotation else jnp.zeros_like(vt)
+    m_eff = p.inertia / (p.inertia + p.radius**2) if terms.rotation else 1.0
+    slip = vt - p.radius * w
+    bound = m_eff * jnp.abs(slip)  # the impulse that brings the slip to zero
+    dv = jnp.clip(-impulse * smooth_sign_flat(slip / terms.slip_width), -bound, bound)
+    out = {"vt": vt + dv, "loss_friction": -dv * slip - 0.5 * dv * dv / m_eff}
+    if terms.rotation:
+        out["w"] = w - p.radius * dv / p.inertia
+    return out
+
+
 def _solve_one(
     terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0, adjoint=None
 ):
@@ -197,6 +236,11 @@ def _solve_one(
     entry = _shell_entry(terms, p, dtype)
     y0["n"] = jnp.asarray(floor, dtype)
     y0["ndot"] = entry["ndot"]
+    if terms.tangential:
+        entry_friction = _shell_friction(terms, p, y0, entry, entry["ndot"])
+        for k in ("vt", "w"):
+            if k in y0:
+                y0[k] = entry_friction[k]
 
     # One scalar event (diffrax's root find over several events solves a least-squares problem
     # whose rounding depends on the batch): the overlap reaches the contact floor
@@ -246,6 +290,17 @@ def _solve_one(
     else:
         captured = False
     separated = event_hit & ~captured
+    if terms.tangential:
+        exit_.update(_shell_friction(terms, p, y, exit_, y["ndot"]))
+        for k in ("vt", "w"):
+            if k in y:
+                y[k] = jnp.where(separated, exit_[k], y[k])
+        if "loss_friction" in y:
+            entry["loss_friction"] = entry_friction["loss_friction"]
+            y["loss_friction"] = y["loss_friction"] + entry["loss_friction"]
+            y["loss_friction"] = y["loss_friction"] + jnp.where(
+                separated, exit_["loss_friction"], 0.0
+            )
     y["n"] = jnp.where(separated, 0.0, y["n"])
     y["ndot"] = jnp.where(separated, exit_["ndot"], y["ndot"])
     shell_time = entry["time"] + jnp.where(separated, exit_["time"], 0.0)
