@@ -127,7 +127,9 @@ def add_sweep_command(sub) -> None:
         epilog=SWEEP_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    sw.add_argument("scene", nargs="?", help="scene file (TOML); default: embedded Table 1")
+    sw.add_argument(
+        "scene", nargs="?", help="scene: an embedded name (`jaximpact scenes`) or a TOML file"
+    )
     what = sw.add_mutually_exclusive_group(required=True)
     what.add_argument("--impacts", help="impacts file: CSV or Parquet (columns as the CSV)")
     what.add_argument(

@@ -774,13 +774,15 @@ def _model_config(scene, source, chunk_size: int, dtype):
 
 
 def _settings(scene_path, source, chunk_size: int, dtype) -> tuple[dict, str]:
-    from . import __version__, default_scene_path
+    from . import __version__
+    from ._scene_io import describe_scene_source
+    from ._scene_io import scene_path as resolve_scene
 
-    scene_file = Path(default_scene_path() if scene_path is None else scene_path)
+    scene_file = resolve_scene(scene_path)  # an embedded scene's name, or a path
     settings = {
         "format": FORMAT,
         "jaximpact": __version__,
-        "scene": "embedded Table 1" if scene_path is None else str(scene_path),
+        "scene": describe_scene_source(scene_path),
         "scene_sha256": hashlib.sha256(scene_file.read_bytes()).hexdigest(),
         "impacts": source.fingerprint,
         "precision": np.dtype(dtype).name,
@@ -832,7 +834,8 @@ def run_sweep(
     Arguments:
         source: the impacts (:func:`read_impacts_file`, or :class:`GridSource`).
         output: the output directory (created if missing).
-        scene_path: the scene file; ``None``: the embedded Table 1 scene.
+        scene_path: an embedded scene's name or a scene file; ``None``: the embedded Table 1
+            scene.
         chunk_size: impacts per chunk; a multiple of the number of local JAX devices.
         restart: delete results made with other settings (or any results) and start over.
         progress: show a tqdm progress bar on stderr (impacts/s, ETA).

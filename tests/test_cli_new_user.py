@@ -230,3 +230,14 @@ def test_readme_fit_data_examples_load(tmp_path):
         path.write_text(text)
         obs = fitting.load_observations(path)
         assert len(obs) == 2, text  # two observations in each example
+
+
+def test_sweep_takes_an_embedded_scene_by_name(tmp_path):
+    import pyarrow.parquet as pq
+
+    out = tmp_path / "k.parquet"
+    proc = run("sweep", "kharaz2001", "--grid", "angle_deg=0,45", "-o", out, "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    table = pq.read_table(out)  # a plain Parquet reader opens the directory
+    assert table.column("speed").to_pylist() == [3.9, 3.9]  # the scene's [impact] speed
+    assert table.schema.field("vt_out").metadata == {b"unit": b"m/s"}
