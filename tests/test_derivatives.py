@@ -158,16 +158,19 @@ def test_normal_incidence_spin_derivative_is_exact():
     assert float(jac["omega_out"][0, 0]) == pytest.approx(5 / 7 * speed / r * d_angle, rel=TOL)
 
 
+BATCH = (
+    np.array([1.5, 1.0, 0.3, 5.0, 0.05, 2.0, 0.7]),
+    np.array([0.0, 30.0, -50.0, 70.0, 10.0, 0.0, -20.0]),
+    np.array([12000.0, 0.0, 3000.0, -20000.0, 0.0, 0.0, 5e4]),
+)
+
+
 def test_batch_does_not_change_a_lane(table1):
-    """Outputs bitwise and derivatives to 1e-12: alone, in a batch, in a shuffled batch."""
-    speed = np.array([1.5, 1.0, 0.3, 5.0, 0.05, 2.0, 0.7])
-    angle = np.array([0.0, 30.0, -50.0, 70.0, 10.0, 0.0, -20.0])
-    omega0 = np.array([12000.0, 0.0, 3000.0, -20000.0, 0.0, 0.0, 5e4])
+    """Outputs bitwise: alone, in a batch, in a shuffled batch."""
+    speed, angle, omega0 = BATCH
     batch = ji.simulate(table1, speed, angle, omega0)
     perm = np.random.default_rng(seed("shuffle")).permutation(len(speed))
     shuffled = ji.simulate(table1, speed[perm], angle[perm], omega0[perm])
-    inputs = ("C_H", "speed")
-    jac = ji.output_jacobian(table1, speed, angle, omega0, inputs=inputs)
     for i in range(len(speed)):
         alone = ji.simulate(table1, speed[i], angle[i], omega0[i])
         j = int(np.flatnonzero(perm == i)[0])
@@ -175,6 +178,14 @@ def test_batch_does_not_change_a_lane(table1):
             a, b, c = (np.asarray(getattr(x, k)) for x in (alone, batch, shuffled))
             np.testing.assert_array_equal(a, b[i], err_msg=f"{k}, impact {i}")
             np.testing.assert_array_equal(c[j], b[i], err_msg=f"{k}, impact {i} shuffled")
+
+
+@pytest.mark.slow  # two forward-mode programs: CI's second step
+def test_batch_does_not_change_a_lanes_derivatives(table1):
+    """Derivatives to 1e-12: alone and in a batch."""
+    speed, angle, omega0 = BATCH
+    inputs = ("C_H", "speed")
+    jac = ji.output_jacobian(table1, speed, angle, omega0, inputs=inputs)
     jac_alone = ji.output_jacobian(table1, speed[0], angle[0], omega0[0], inputs=inputs)
     for k in OUTPUTS:
         np.testing.assert_allclose(jac_alone[k][0], jac[k][0], rtol=1e-12, atol=0, err_msg=k)

@@ -74,8 +74,17 @@ def test_rolling_exit_limit(omega0):
     assert float(res.omega_out) * r == pytest.approx(expected, rel=2e-4, abs=1e-6)
 
 
-@pytest.mark.parametrize("moments", ["none", "analytical", "lambda"])
-@pytest.mark.parametrize("load", ["net", "hertz"])
+@pytest.mark.parametrize(
+    "moments,load",
+    [
+        ("analytical", "net"),
+        ("none", "hertz"),
+        pytest.param("lambda", "net", marks=pytest.mark.slow),
+        pytest.param("none", "net", marks=pytest.mark.slow),
+        pytest.param("analytical", "hertz", marks=pytest.mark.slow),
+        pytest.param("lambda", "hertz", marks=pytest.mark.slow),
+    ],
+)
 def test_energy_ledger_closes(table1, moments, load):
     scene = table1.replace(
         model={"rolling_moments": moments, "friction_load": load, "lambda_": 1e-5}
@@ -309,6 +318,7 @@ def test_rebound_outputs_mode_leaves_out_the_ledger(table1):
         assert np.all(np.isnan(np.asarray(getattr(fast, name))))
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_gradient_finite_through_a_capture(table1):
     # A captured impact in the batch must not poison gradients (NaN) of the rebounding ones.
     def loss(f0):

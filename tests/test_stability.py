@@ -78,6 +78,7 @@ def test_capture_speed_plus_minus_one_percent(table1):
     assert int(below.status) == Status.CAPTURED and int(above.status) == Status.REBOUND
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_explicit_solver_forced_on_stiff_lambda(table1):
     scene = table1.replace(model={"rolling_moments": "lambda", "lambda_": 1e-3})
     res = ji.simulate(scene, 1.66, 40.0, W_PAPER, method="tsit5")
@@ -88,6 +89,7 @@ def test_explicit_solver_forced_on_stiff_lambda(table1):
         assert np.isnan(float(res.cor_n))  # failed impacts have NaN outputs, never wrong ones
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_tiny_slip_width_picks_implicit_solver_and_agrees(table1):
     # width 1e-8 < 30 rtol: "auto" integrates with Kvaerno5 (compiles ~20 s)
     scene = table1.replace(solver={"slip_width": 1e-8})
