@@ -16,8 +16,8 @@ import numpy as np
 from _common import as_dict, fmt, max_error, output_errors, reference_rows, table
 
 import jaximpact as ji
+from jaximpact import integration_settings, scene_parameters
 from jaximpact import reference as ref
-from jaximpact._simulate import integration_settings, scene_parameters
 
 DEG = math.pi / 180.0
 W_PAPER = 1e6 * DEG  # rad/s
