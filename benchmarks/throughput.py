@@ -411,7 +411,149 @@ def plot(results):
     return fig
 
 
+# Issue 12: the batch paths of one configuration, timed in the same process with interleaved
+# repeats (the machine is shared: ratios are measured side by side, not across runs).
+PATHS = {
+    "plain": ("plain vmapped `diffeqsolve` (the whole batch in one)", dict(chunk=0)),
+    "chunked": ("chunked `diffeqsolve` (default: `CHUNK` lanes per device at a time)", {}),
+    "lean": ('chunked lean step loop (`loop="lean"`, prototype)', dict(loop="lean")),
+}
+
+
+def paths_worker(cfg):
+    """Runs in the subprocess: each path (or chunk size) once to compile, then the repeats
+    interleaved; prints one JSON line per path."""
+    import jax
+
+    jax.config.update("jax_enable_x64", cfg["x64"])
+    import jaximpact as ji
+    from jaximpact import _simulate as sim
+
+    scene = ji.table1_scene()
+    speed, angle, omega0 = impacts("full", cfg["n"])
+    runs = {}
+    for name in cfg["paths"]:
+        kw = dict(PATHS[name][1]) if name in PATHS else dict(chunk=int(name))
+        call = lambda kw=kw: jax.block_until_ready(  # noqa: E731
+            sim._simulate(scene, speed, angle, omega0, **kw)
+        )
+        t = time.perf_counter()
+        res = call()
+        runs[name] = dict(call=call, first=time.perf_counter() - t, times=[], res=res)
+    base = runs[cfg["paths"][0]]["res"]
+    for _ in range(cfg["repeats"]):
+        for r in runs.values():
+            t = time.perf_counter()
+            r["call"]()
+            r["times"].append(time.perf_counter() - t)
+    for name, r in runs.items():
+        same = all(
+            np.array_equal(np.asarray(getattr(r["res"], k)), np.asarray(getattr(base, k)), True)
+            for k in ("status", "steps", "cor_n", "vt_out", "omega_out", "contact_time")
+        )
+        run = float(np.median(r["times"]))
+        out = dict(
+            path=name,
+            x64=cfg["x64"],
+            devices=len(jax.local_devices()),
+            n=cfg["n"],
+            run=run,
+            rate=cfg["n"] / run,
+            times=r["times"],
+            compile=r["first"] - run,
+            bitwise=same,
+            steps_max=int(np.asarray(r["res"].steps).max()),
+            steps_median=float(np.median(np.asarray(r["res"].steps))),
+        )
+        print("RESULT " + json.dumps(out), flush=True)
+
+
+def paths_spawn(cfg, devices=1, timeout=1800):
+    cmd = [sys.executable, str(HERE / "throughput.py"), "--paths-worker", json.dumps(cfg)]
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+    if proc.returncode != 0:
+        print(proc.stderr[-2000:], file=sys.stderr)
+    return [json.loads(x[7:]) for x in proc.stdout.splitlines() if x.startswith("RESULT ")]
+
+
+def issue12(n=20000, repeats=3, scan=(0, 128, 256, 512, 1024, 2048)):
+    """Markdown of the issue-12 measurements: the paths per precision and device count, and
+    the chunk-size scan (float64, one device)."""
+    from _common import table
+
+    rows = []
+    for x64 in (True, False):
+        for devices in (1, len(os.sched_getaffinity(0))):
+            cfg = dict(x64=x64, n=n, repeats=repeats, paths=list(PATHS))
+            res = paths_spawn(cfg, devices)
+            plain = next((r for r in res if r["path"] == "plain"), None)
+            for r in res:
+                rows.append(
+                    [
+                        "float64" if x64 else "float32",
+                        r["devices"],
+                        PATHS[r["path"]][0],
+                        f"{r['rate']:,.0f}",
+                        f"{r['run']:.2f}",
+                        f"{plain['run'] / r['run']:.2f}" if plain else "–",
+                        f"{r['steps_median']:.0f} / {r['steps_max']}",
+                        f"{r['compile']:.0f}",
+                        "yes" if r["bitwise"] else "**no**",
+                    ]
+                )
+    scan_res = paths_spawn(dict(x64=True, n=n, repeats=repeats, paths=[str(c) for c in scan]))
+    base = next((r for r in scan_res if r["path"] == "0"), None)
+    scan_rows = [
+        [
+            "whole batch" if r["path"] == "0" else r["path"],
+            f"{r['rate']:,.0f}",
+            f"{r['run']:.2f}",
+            f"{base['run'] / r['run']:.2f}" if base else "–",
+            "yes" if r["bitwise"] else "**no**",
+        ]
+        for r in scan_res
+    ]
+    md = [
+        f"Batch {n}, oblique spinning Table 1 impacts (as above), default settings (float64: "
+        "rtol 1e-10, atol 1e-12). Medians of "
+        f"{repeats} interleaved repeats per configuration, one process per precision and "
+        "device count; *vs plain*: the plain vmapped `diffeqsolve` timed in the same process; "
+        "*bitwise*: status, steps and outputs identical to the first row of the process.\n",
+        table(
+            [
+                "precision",
+                "devices",
+                "path",
+                "impacts/s",
+                "run (s)",
+                "vs plain",
+                "steps median / max",
+                "compile (s)",
+                "bitwise",
+            ],
+            rows,
+        ),
+        "\nChunk size (lanes per device at a time; `diffeqsolve`, float64, one device):\n",
+        table(["chunk", "impacts/s", "run (s)", "vs whole batch", "bitwise"], scan_rows),
+    ]
+    return "\n".join(md) + "\n", dict(paths=rows, scan=scan_res)
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
-    ap.add_argument("--worker", required=True)
-    worker(json.loads(ap.parse_args().worker))
+    ap.add_argument("--worker")
+    ap.add_argument("--paths-worker")
+    ap.add_argument("--issue12", action="store_true", help="print the issue-12 tables")
+    ap.add_argument("--n", type=int, default=20000)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    if args.worker:
+        worker(json.loads(args.worker))
+    elif args.paths_worker:
+        paths_worker(json.loads(args.paths_worker))
+    elif args.issue12:
+        print(issue12(args.n, args.repeats)[0])
+    else:
+        ap.error("give --issue12 (or --worker/--paths-worker JSON, used internally)")

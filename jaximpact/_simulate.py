@@ -8,6 +8,7 @@ import numpy as np
 import optimistix as optx
 
 from . import _dynamics as dyn
+from . import _fast_loop
 from ._results import ImpactResult, Status
 from ._safe import smooth_sign_flat
 from ._scene import INERTIA_FACTOR, Scene, SceneError, _is_concrete, check_impact
@@ -224,9 +225,20 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
 
 
 def _solve_one(
-    terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0, adjoint=None
+    terms: dyn.Terms,
+    cfg: Integration,
+    params: dict,
+    speed,
+    angle_deg,
+    omega0,
+    adjoint=None,
+    loop="diffrax",
 ):
-    """Integrate one impact in Hertz units and return its ``ImpactResult`` fields (SI)."""
+    """Integrate one impact in Hertz units and return its ``ImpactResult`` fields (SI).
+
+    ``loop="lean"``: the step loop of ``_fast_loop`` where it supports the solver (forward
+    only; issue 12's prototype), else ``diffrax.diffeqsolve``.
+    """
     dtype = jnp.result_type(speed)
     p, u = _scaled(params, speed, angle_deg, omega0)
     theta = jnp.deg2rad(angle_deg)
@@ -256,9 +268,27 @@ def _solve_one(
     tol = max(1e-10, 100 * float(jnp.finfo(dtype).eps))
     event = diffrax.Event(cond, root_finder=optx.Newton(rtol=tol, atol=tol), direction=False)
     controller, dt0 = make_controller(cfg.method, cfg.rtol, cfg.atol, cfg.dt, _error_norm)
-    sol = diffrax.diffeqsolve(
+    solver = make_solver(cfg.method, dtype)
+    if loop == "lean" and _fast_loop.supported(solver, controller, event):
+        integrate = _fast_loop.diffeqsolve_lean
+    else:
+        integrate = diffrax.diffeqsolve
+    options = {}
+    if integrate is diffrax.diffeqsolve:
+        # Reverse mode keeps every step rather than recomputing steps from checkpoints: the
+        # recomputed steps came out different enough (a different step sequence after a
+        # one-ulp difference) to put jax.grad 1e-3..1e-2 away from jax.jacfwd (measured).
+        options = dict(
+            throw=False,
+            adjoint=(
+                diffrax.RecursiveCheckpointAdjoint(checkpoints=cfg.max_steps)
+                if adjoint is None
+                else adjoint
+            ),
+        )
+    sol = integrate(
         diffrax.ODETerm(dyn.ImpactField(terms)),
-        make_solver(cfg.method, dtype),
+        solver,
         t0=0.0,
         t1=T_MAX,
         dt0=dt0,
@@ -267,15 +297,7 @@ def _solve_one(
         event=event,
         stepsize_controller=controller,
         max_steps=cfg.max_steps,
-        throw=False,
-        # Reverse mode keeps every step rather than recomputing steps from checkpoints: the
-        # recomputed steps came out different enough (a different step sequence after a
-        # one-ulp difference) to put jax.grad 1e-3..1e-2 away from jax.jacfwd (measured).
-        adjoint=(
-            diffrax.RecursiveCheckpointAdjoint(checkpoints=cfg.max_steps)
-            if adjoint is None
-            else adjoint
-        ),
+        **options,
     )
     y = jax.tree_util.tree_map(lambda x: x[-1], sol.ys)
     t_end = sol.ts[-1]
@@ -374,10 +396,49 @@ def _solve_one(
     return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
 
 
+# Lanes per device that one chunk of a large batch integrates at a time (issue 12; measured in
+# BENCHMARKS.md, "Throughput (issue 12)"). A vmapped solve walks its whole state once per step;
+# a chunk of this size keeps that state in the CPU's caches, and its slowest lane bounds the
+# steps of fewer lanes than the slowest of the whole batch does.
+CHUNK = 512
+
+
 @eqx.filter_jit
-def _simulate_flat(terms, cfg, params, speed, angle_deg, omega0, adjoint=None):
-    solve = lambda prm, s, a, w: _solve_one(terms, cfg, prm, s, a, w, adjoint)  # noqa: E731
-    return jax.vmap(solve)(params, speed, angle_deg, omega0)
+def _simulate_flat(
+    terms, cfg, params, speed, angle_deg, omega0, adjoint=None, chunk=None, shards=1, loop="diffrax"
+):
+    """The batch of impacts (1-D inputs), vmapped; with ``chunk``, in chunks one after another.
+
+    ``chunk``: at most this many lanes per device in one vmapped solve. A larger batch becomes
+    ``n`` equal chunks (the last padded with copies of a real lane) that ``lax.map`` solves one
+    after another inside the compiled program. A lane's arithmetic does not depend on its chunk
+    (every operation is elementwise over lanes, and a chunk holds at least 2 lanes), so outputs
+    and step counts are bitwise those of the unchunked batch. ``shards``: the batch is split in
+    that many contiguous parts over devices (``_shard_over_devices``); each chunk then takes
+    its lanes from every part alike, so no lane changes device. ``loop``: see ``_solve_one``.
+    """
+    solve = lambda xs: jax.vmap(  # noqa: E731
+        lambda prm, s, a, w: _solve_one(terms, cfg, prm, s, a, w, adjoint, loop)
+    )(*xs)
+    inputs = (params, speed, angle_deg, omega0)
+    size = speed.shape[0]
+    if not chunk or size % shards or size <= shards * chunk:
+        return solve(inputs)
+    per = size // shards  # lanes per device
+    n_chunks = -(-per // chunk)
+    width = -(-per // n_chunks)  # lanes per device and chunk: the chunks as equal as can be
+    pad = n_chunks * width - per
+
+    def split(x):  # (size,) -> (n_chunks, shards * width), each device's lanes in its columns
+        x = jnp.pad(x.reshape(shards, per), ((0, 0), (0, pad)), mode="edge")
+        return x.reshape(shards, n_chunks, width).swapaxes(0, 1).reshape(n_chunks, -1)
+
+    def merge(y):
+        y = y.reshape(n_chunks, shards, width).swapaxes(0, 1).reshape(shards, -1)
+        return y[:, :per].reshape(size)
+
+    out = jax.lax.map(solve, jax.tree_util.tree_map(split, inputs))
+    return jax.tree_util.tree_map(merge, out)
 
 
 def simulate(
@@ -412,6 +473,25 @@ def simulate(
 
     Works under ``jax.jit``, ``jax.vmap`` and ``jax.grad``; changing values does not recompile.
     """
+    return _simulate(scene, speed, angle_deg, omega0, method=method, adjoint=adjoint)
+
+
+def _simulate(
+    scene,
+    speed=None,
+    angle_deg=None,
+    omega0=None,
+    *,
+    method=None,
+    adjoint=None,
+    chunk=None,
+    loop="diffrax",
+):
+    """``simulate`` with the batch path's private settings: ``chunk``, lanes per device in one
+    vmapped solve (default ``CHUNK``; 0: the whole batch in one, as before issue 12); ``loop``:
+    ``"lean"`` asks for ``_fast_loop``'s step loop (forward only: used only where every input
+    is concrete, so differentiation and traced inputs go through ``diffeqsolve``)."""
+    chunk = CHUNK if chunk is None else chunk
     speed = scene.impact.speed if speed is None else speed
     angle_deg = scene.impact.angle_deg if angle_deg is None else angle_deg
     omega0 = scene.impact.omega0 if omega0 is None else omega0
@@ -435,25 +515,29 @@ def simulate(
         # damping force), which an adaptive solve can amplify; a second copy of the impact
         # gives it the same arithmetic as in any other batch.
         inputs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]), inputs)
-    inputs = _shard_over_devices(inputs, size)
-    result = _simulate_flat(terms, cfg, *inputs, adjoint)
+    if loop != "diffrax" and not all(map(_is_concrete, jax.tree_util.tree_leaves(inputs))):
+        loop = "diffrax"
+    inputs, shards = _shard_over_devices(inputs, size)
+    result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)
     return jax.tree_util.tree_map(lambda x: x[:size].reshape(shape), result)
 
 
 def _shard_over_devices(inputs, size):
     """Split a concrete batch over all local devices (GPUs, or host devices on a CPU with
     ``XLA_FLAGS=--xla_force_host_platform_device_count=N``): padded with copies of its last
-    impact to a multiple of the device count, then sharded along the batch."""
+    impact to a multiple of the device count, then sharded along the batch. Returns the inputs
+    and the number of devices they are split over."""
     devices = jax.local_devices()
     leaves = jax.tree_util.tree_leaves(inputs)
     if len(devices) == 1 or size < 2 * len(devices) or not all(map(_is_concrete, leaves)):
-        return inputs
+        return inputs, 1
     pad = -size % len(devices)
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
     sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-    return jax.tree_util.tree_map(
+    inputs = jax.tree_util.tree_map(
         lambda x: jax.device_put(jnp.pad(x, (0, pad), mode="edge"), sharding), inputs
     )
+    return inputs, len(devices)
 
 
 def integration_settings(scene, params, speed, angle_deg, dtype, method=None) -> Integration:

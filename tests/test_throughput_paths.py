@@ -1,0 +1,116 @@
+"""The batch paths of issue 12: a large batch in chunks, bitwise the unchunked batch.
+
+Small chunks (2-8 lanes) stand in for ``CHUNK``: the code path is the same, and the programs
+stay small. Checked by hand (not here: it needs a process with two host devices): a sharded
+chunked batch gives the bits of one device, and its program has the unchunked one's
+collectives only (the loops' all-reduces).
+"""
+
+import diffrax
+import jax
+import numpy as np
+import pytest
+
+import jaximpact as ji
+from jaximpact import _simulate as sim
+
+FIELDS = ("status", "steps", "cor_n", "vt_out", "omega_out", "contact_time", "max_overlap")
+FIELDS += ("loss_friction", "energy_out")
+
+
+def impacts(n, seed=12):
+    rng = np.random.default_rng(seed)
+    speed = rng.uniform(0.5, 5.0, n)
+    angle = rng.uniform(-60.0, 60.0, n)
+    omega0 = rng.uniform(-2e4, 2e4, n)
+    speed[1] = 0.02  # a capture among the rebounds
+    return speed, angle, omega0
+
+
+@pytest.mark.parametrize("n, chunk", [(17, 4), (16, 8)])
+def test_chunked_batch_is_bitwise_the_unchunked_batch(table1, n, chunk):
+    """Outputs and step counts: same bits, for a multiple of the chunk and not."""
+    speed, angle, omega0 = impacts(n)
+    whole = sim._simulate(table1, speed, angle, omega0, chunk=0)
+    chunked = sim._simulate(table1, speed, angle, omega0, chunk=chunk)
+    assert np.asarray(whole.status)[1] == ji.Status.CAPTURED
+    for k in FIELDS:
+        a, b = np.asarray(getattr(whole, k)), np.asarray(getattr(chunked, k))
+        assert a.shape == b.shape == (n,)
+        np.testing.assert_array_equal(a, b, err_msg=k)
+
+
+def test_default_chunk_used_by_simulate(table1, monkeypatch):
+    """``simulate`` chunks a batch larger than ``CHUNK`` and keeps each lane's bits."""
+    speed, angle, omega0 = impacts(11)
+    whole = sim._simulate(table1, speed, angle, omega0, chunk=0)
+    monkeypatch.setattr(sim, "CHUNK", 4)
+    res = ji.simulate(table1, speed.reshape(11, 1), angle.reshape(11, 1), omega0.reshape(11, 1))
+    assert res.cor_n.shape == (11, 1)
+    for k in FIELDS:
+        np.testing.assert_array_equal(
+            np.asarray(getattr(res, k))[:, 0], np.asarray(getattr(whole, k)), err_msg=k
+        )
+
+
+def test_chunked_forward_derivatives_match_unchunked(table1):
+    """``jax.jacfwd`` through a chunked batch: the unchunked derivatives to 1e-12."""
+    speed, angle, omega0 = impacts(9, seed=3)
+
+    def outputs(x, chunk):
+        scene = table1.replace(contact={"C_H": x[0], "f0": x[1]})
+        r = sim._simulate(scene, speed, angle, omega0, adjoint=diffrax.ForwardMode(), chunk=chunk)
+        return jax.numpy.stack([r.cor_n, r.vt_out, r.omega_out])
+
+    x = jax.numpy.asarray([table1.contact.C_H, table1.contact.f0])
+    whole = np.asarray(jax.jacfwd(lambda x: outputs(x, 0))(x))
+    chunked = np.asarray(jax.jacfwd(lambda x: outputs(x, 4))(x))
+    assert np.all(np.isfinite(whole[:, [0, 2, 3, 4, 5, 6, 7, 8]]))
+    scale = np.nanmax(np.abs(whole), axis=1, keepdims=True)
+    np.testing.assert_allclose(chunked, whole, rtol=1e-12, atol=1e-12 * scale.max())
+
+
+@pytest.mark.slow  # reverse mode through lax.map compiles for minutes: CI's second step
+def test_chunked_reverse_gradient_matches_unchunked(table1):
+    """``jax.grad`` through a chunked batch (reverse mode through ``lax.map``)."""
+    speed, angle, omega0 = impacts(5, seed=4)
+    speed[1] = 1.0
+
+    def loss(c_h, chunk):
+        scene = table1.replace(contact={"C_H": c_h})
+        return sim._simulate(scene, speed, angle, omega0, chunk=chunk).cor_n.sum()
+
+    c_h = jax.numpy.asarray(table1.contact.C_H)
+    whole = float(jax.grad(lambda c: loss(c, 0))(c_h))
+    chunked = float(jax.grad(lambda c: loss(c, 2))(c_h))
+    assert np.isfinite(whole)
+    assert chunked == pytest.approx(whole, rel=1e-12)
+
+
+def test_lean_loop_is_bitwise_diffeqsolve(table1):
+    """``_fast_loop``'s step loop: diffrax's arithmetic without its bookkeeping, same bits
+    (rebounds and a capture), and chunked like the default path."""
+    speed, angle, omega0 = impacts(7, seed=5)
+    ref = sim._simulate(table1, speed, angle, omega0, chunk=0)
+    lean = sim._simulate(table1, speed, angle, omega0, chunk=4, loop="lean")
+    assert np.asarray(ref.status)[1] == ji.Status.CAPTURED
+    for k in FIELDS:
+        np.testing.assert_array_equal(
+            np.asarray(getattr(lean, k)), np.asarray(getattr(ref, k)), err_msg=k
+        )
+
+
+def test_lean_loop_falls_back_under_differentiation(table1):
+    """Traced inputs (here ``jax.jacfwd``) go through ``diffeqsolve``: derivatives exact."""
+    speed, angle, omega0 = impacts(3, seed=6)
+
+    def cor(c_h, loop):
+        scene = table1.replace(contact={"C_H": c_h})
+        r = sim._simulate(scene, speed, angle, omega0, adjoint=diffrax.ForwardMode(), loop=loop)
+        return r.cor_n
+
+    c_h = jax.numpy.asarray(table1.contact.C_H)
+    np.testing.assert_array_equal(
+        np.asarray(jax.jacfwd(lambda c: cor(c, "lean"))(c_h)),
+        np.asarray(jax.jacfwd(lambda c: cor(c, "diffrax"))(c_h)),
+    )
