@@ -396,11 +396,22 @@ def _solve_one(
     return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
 
 
-# Lanes per device that one chunk of a large batch integrates at a time (issue 12; measured in
-# BENCHMARKS.md, "Throughput (issue 12)"). A vmapped solve walks its whole state once per step;
-# a chunk of this size keeps that state in the CPU's caches, and its slowest lane bounds the
-# steps of fewer lanes than the slowest of the whole batch does.
+# Lanes per device that one chunk of a large batch integrates at a time, on a CPU (issue 12;
+# measured in BENCHMARKS.md, "Throughput (issue 12)"). A vmapped solve walks its whole state
+# once per step; a chunk of 512 lanes keeps that state in a core's caches (1.37x per CPU-second
+# on one core against the whole batch of 20000). But XLA splits the operations of a large
+# batch over all cores, which a small chunk forgoes: on one device a chunk of 512 took 1.5x
+# the wall time of the whole batch on 2 cores, so one device gets large chunks, and the small
+# ones are for a batch sharded over one device per core (``use_all_cpu_cores``). No chunks on
+# GPUs, where a larger batch is better.
 CHUNK = 512
+CHUNK_ONE_DEVICE = 4096
+
+
+def _default_chunk(shards: int) -> int:
+    if jax.default_backend() != "cpu":
+        return 0
+    return CHUNK if shards > 1 else CHUNK_ONE_DEVICE
 
 
 @eqx.filter_jit
@@ -488,10 +499,9 @@ def _simulate(
     loop="diffrax",
 ):
     """``simulate`` with the batch path's private settings: ``chunk``, lanes per device in one
-    vmapped solve (default ``CHUNK``; 0: the whole batch in one, as before issue 12); ``loop``:
-    ``"lean"`` asks for ``_fast_loop``'s step loop (forward only: used only where every input
-    is concrete, so differentiation and traced inputs go through ``diffeqsolve``)."""
-    chunk = CHUNK if chunk is None else chunk
+    vmapped solve (default ``_default_chunk``; 0: the whole batch in one, as before issue 12);
+    ``loop``: ``"lean"`` asks for ``_fast_loop``'s step loop (forward only: used only where
+    every input is concrete, so differentiation and traced inputs go through ``diffeqsolve``)."""
     speed = scene.impact.speed if speed is None else speed
     angle_deg = scene.impact.angle_deg if angle_deg is None else angle_deg
     omega0 = scene.impact.omega0 if omega0 is None else omega0
@@ -518,6 +528,7 @@ def _simulate(
     if loop != "diffrax" and not all(map(_is_concrete, jax.tree_util.tree_leaves(inputs))):
         loop = "diffrax"
     inputs, shards = _shard_over_devices(inputs, size)
+    chunk = _default_chunk(shards) if chunk is None else chunk
     result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)
     return jax.tree_util.tree_map(lambda x: x[:size].reshape(shape), result)
 

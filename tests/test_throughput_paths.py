@@ -41,10 +41,11 @@ def test_chunked_batch_is_bitwise_the_unchunked_batch(table1, n, chunk):
 
 
 def test_default_chunk_used_by_simulate(table1, monkeypatch):
-    """``simulate`` chunks a batch larger than ``CHUNK`` and keeps each lane's bits."""
+    """``simulate`` chunks a batch larger than the default chunk and keeps each lane's bits."""
     speed, angle, omega0 = impacts(11)
     whole = sim._simulate(table1, speed, angle, omega0, chunk=0)
-    monkeypatch.setattr(sim, "CHUNK", 4)
+    assert sim._default_chunk(1) == sim.CHUNK_ONE_DEVICE  # the tests run on a CPU
+    monkeypatch.setattr(sim, "CHUNK_ONE_DEVICE", 4)
     res = ji.simulate(table1, speed.reshape(11, 1), angle.reshape(11, 1), omega0.reshape(11, 1))
     assert res.cor_n.shape == (11, 1)
     for k in FIELDS:
