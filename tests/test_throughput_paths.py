@@ -27,7 +27,7 @@ def impacts(n, seed=12):
     return speed, angle, omega0
 
 
-@pytest.mark.parametrize("n, chunk", [(17, 4), (16, 8)])
+@pytest.mark.parametrize("n, chunk", [(17, 4), pytest.param(16, 8, marks=pytest.mark.slow)])
 def test_chunked_batch_is_bitwise_the_unchunked_batch(table1, n, chunk):
     """Outputs and step counts: same bits, for a multiple of the chunk and not."""
     speed, angle, omega0 = impacts(n)
@@ -40,6 +40,7 @@ def test_chunked_batch_is_bitwise_the_unchunked_batch(table1, n, chunk):
         np.testing.assert_array_equal(a, b, err_msg=k)
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_default_chunk_used_by_simulate(table1, monkeypatch):
     """``simulate`` chunks a batch larger than the default chunk and keeps each lane's bits."""
     speed, angle, omega0 = impacts(11)
@@ -54,6 +55,7 @@ def test_default_chunk_used_by_simulate(table1, monkeypatch):
         )
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_chunked_forward_derivatives_match_unchunked(table1):
     """``jax.jacfwd`` through a chunked batch: the unchunked derivatives to 1e-12."""
     speed, angle, omega0 = impacts(9, seed=3)
@@ -101,6 +103,7 @@ def test_lean_loop_is_bitwise_diffeqsolve(table1):
         )
 
 
+@pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_lean_loop_falls_back_under_differentiation(table1):
     """Traced inputs (here ``jax.jacfwd``) go through ``diffeqsolve``: derivatives exact."""
     speed, angle, omega0 = impacts(3, seed=6)
