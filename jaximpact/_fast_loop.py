@@ -101,8 +101,11 @@ def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, *, event, stepsize_con
         tprev = jnp.minimum(tprev, t1)
         clip = tnext > t1_clip_floor
         tnext = jnp.where(clip, jnp.where(keep, t1, tprev + 0.5 * (t1 - tprev)), tnext)
-        y = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), y1, s["y"])
-        solver_state = jnp.where(keep, new_state, s["solver_state"])
+        select = lambda a, b: jax.tree_util.tree_map(  # noqa: E731
+            lambda u, v: jnp.where(keep, u, v), a, b
+        )
+        y = select(y1, s["y"])
+        solver_state = select(new_state, s["solver_state"])  # any solver's state pytree
         result = RESULTS.where(keep, step_result, RESULTS.successful)
         result = RESULTS.where(is_okay(s["result"]), result, s["result"])
         result = RESULTS.where(is_okay(result), ctrl_result, result)

@@ -256,10 +256,11 @@ def _solve_one(
 
     # One scalar event (diffrax's root find over several events solves a least-squares problem
     # whose rounding depends on the batch): the overlap reaches the contact floor
-    # (separation), or, with adhesion, the normal energy reaches zero (capture).
+    # (separation), or, with adhesion, the normal energy reaches zero (capture; scaled to
+    # order one by ``capture_margin`` so that the root finder's tolerance is meaningful).
     if terms.adhesion:
         cond = lambda t, y, args, **kw: jnp.minimum(  # noqa: E731
-            y["n"] - floor, dyn.normal_energy(terms, args, y)
+            y["n"] - floor, dyn.capture_margin(terms, args, y)
         )
     else:  # without adhesion the normal energy cannot fall below zero
         cond = lambda t, y, args, **kw: y["n"] - floor  # noqa: E731
@@ -308,7 +309,7 @@ def _solve_one(
     if terms.adhesion:
         # At the event one of the two is ~0 and the other positive. A sphere whose normal
         # energy runs out inside the shell below the floor is captured too.
-        captured = event_hit & ((y["n"] - floor > dyn.normal_energy(terms, p, y)) | ~exit_["ok"])
+        captured = event_hit & ((y["n"] - floor > dyn.capture_margin(terms, p, y)) | ~exit_["ok"])
     else:
         captured = False
     separated = event_hit & ~captured
