@@ -124,10 +124,16 @@ def scene_report(scene_arg=None) -> str:
         used.append("adhesion ring force and adhesion damping")
     else:
         left.append("adhesion (" + ("model.adhesion = false" if not m.adhesion else "f0 = 0") + ")")
-    if terms.tangential:
+    if terms.mindlin:
+        used.append(
+            f"Mindlin tangential spring 8 G* a, capped by friction ({m.friction_load} normal load)"
+        )
+    elif terms.tangential:
         used.append(f"friction ({m.friction_load} normal load)")
     else:
         left.append("tangential motion and friction (normal impact without spin)")
+    if terms.tangential and not terms.mindlin:
+        left.append('tangential compliance (model.tangential = "rigid")')
     if terms.rotation:
         used.append("rotation (spin driven by the friction moment)")
     elif terms.tangential:
