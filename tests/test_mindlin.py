@@ -8,6 +8,7 @@ import pytest
 import jaximpact as ji
 from jaximpact import _dynamics as dyn
 from jaximpact import _laws as laws
+from jaximpact import reference as ref
 from jaximpact._scene import SceneError, shear_modulus_star
 from jaximpact._simulate import _scaled, required_terms, scene_parameters
 
@@ -224,3 +225,77 @@ def test_slip_rate_law_dissipates_and_stops_at_the_cap():
     assert float(0.5 - at_cap) == pytest.approx(-0.2, abs=1e-5)
     # Far below the cap: stick (no slip).
     assert abs(float(laws.mindlin_slip_rate(0.5, 0.5, 1.0, 1.0, 0.0, 1e-2, 1e-3))) < 1e-12
+
+
+def _reference_twin(scene, friction, factor):
+    return ref.Params(
+        radius=float(scene.particle.radius),
+        density=float(scene.particle.density),
+        K=float(scene.contact.K),
+        C_H=float(scene.contact.C_H),
+        friction=friction,
+        adhesion=False,
+        rolling_moments="none",
+        tangential="mindlin",
+        G_star=G_ALUMINA * factor,
+    )
+
+
+# Seeded points away from the stick/slip switches' edge cases: (speed, angle, friction, G*/G).
+REFERENCE_POINTS = [
+    (float(v), float(a), float(f), float(g))
+    for v, a, f, g in zip(
+        *(
+            np.random.default_rng(1914).uniform(lo, hi, 4)
+            for lo, hi in ((1.0, 5.0), (1.0, 65.0), (0.05, 0.3), (0.5, 1.5))
+        ),
+        strict=True,
+    )
+]
+
+
+def test_smooth_model_agrees_with_the_exact_reference():
+    """Smooth (regularized, floor shells) against the switched reference (rtol 1e-12):
+    tolerance policy as the rigid model: rebound velocities to ~1e-4 of the speed."""
+    speed, angle, friction, factor = (np.array(c) for c in zip(*REFERENCE_POINTS, strict=True))
+    scene = ji.load_scene("kharaz2001")
+    res = ji.simulate(kharaz_mindlin(friction=friction, G_star=G_ALUMINA * factor), speed, angle)
+    for i, (v, a, f, g) in enumerate(REFERENCE_POINTS):
+        exact = ref.simulate_impact(_reference_twin(scene, f, g), v, a, rtol=1e-12, atol=1e-15)
+        assert exact.status == "rebound"
+        assert abs(exact.ledger_residual) < 1e-9
+        r = 2.5e-3
+        assert float(res.vn_out[i]) == pytest.approx(exact.vn_out, abs=5e-5 * v)
+        assert float(res.vt_out[i]) == pytest.approx(exact.vt_out, abs=5e-5 * v)
+        assert float(res.omega_out[i]) * r == pytest.approx(exact.omega_out * r, abs=5e-5 * v)
+        assert float(res.loss_friction[i]) == pytest.approx(
+            exact.loss_friction, abs=1e-5 * exact.energy_in
+        )
+
+
+@pytest.mark.slow  # ~35 s: forward-mode program and 16 reference runs per point
+def test_derivatives_of_friction_and_G_star_match_the_reference():
+    """d(output)/d(friction, G*) (forward mode) against Richardson-checked central differences
+    of the reference, scaled like tests/test_derivatives.py: x d/dx of outputs of order one."""
+    from jaximpact._sensitivity import output_jacobian
+
+    scene = ji.load_scene("kharaz2001")
+    points = [(3.9, 20.0, 0.1, 0.7), (3.9, 45.0, 0.1, 0.7)]
+    speed, angle = np.array([p[0] for p in points]), np.array([p[1] for p in points])
+    inputs = ("friction", "G_star")
+    jac = output_jacobian(kharaz_mindlin(friction=0.1, G_star=0.7 * G_ALUMINA), speed, angle,
+                          inputs=inputs)  # fmt: skip
+    worst = 0.0
+    for i, (v, a, f, g) in enumerate(points):
+        params = _reference_twin(scene, f, g)
+        exact, fd_err = ref.output_derivatives(params, v, a, inputs=inputs)
+        scale_out = {"cor_n": 1.0, "vt_out": v, "omega_out": v / params.radius,
+                     "rebound_angle_deg": 180 / np.pi}  # fmt: skip
+        for out, s_out in scale_out.items():
+            for j, name in enumerate(inputs):
+                x = getattr(params, name)
+                want = exact[out][name] * x / s_out
+                got = float(jac[out][i, j]) * x / s_out
+                assert fd_err[out][name] * x / s_out < 1e-4, (out, name)
+                worst = max(worst, abs(got - want))
+    assert worst < 2e-4  # measured: 3e-5
