@@ -68,6 +68,7 @@ FITTABLE = {
     "f0": ("contact", "f0"),
     "friction": ("contact", "friction"),
     "K": ("contact", "K"),
+    "G_star": ("contact", "G_star"),  # with model.tangential = "mindlin"
     "lambda": ("model", "lambda_"),
     "radius": ("particle", "radius"),
     "density": ("particle", "density"),
