@@ -307,7 +307,7 @@ def fit(
     malformed data file.
     """
     t_start = time.perf_counter()
-    names = check_names(params)
+    names = check_names(params, scene)
     if solver not in SOLVERS:
         raise FitError(f"unknown solver {solver!r}; choose from {', '.join(SOLVERS)}")
     if jacobian not in JACOBIAN_MODES:

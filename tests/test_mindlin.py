@@ -313,6 +313,8 @@ def test_G_star_is_fittable_and_the_mindlin_scene_is_embedded():
     assert "G_star" in fitting.FITTABLE
     moved = set_parameters(scene, {"G_star": 5e10})
     assert float(moved.contact.G_star) == 5e10
+    with pytest.raises(fitting.FitError, match='model.tangential = "mindlin"'):
+        fitting.fit(ji.load_scene("kharaz2001"), fitting.load_kharaz2001(), ["G_star"])
 
 
 @pytest.mark.slow  # ~80 s: the fit's program compiles
