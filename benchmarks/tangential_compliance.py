@@ -7,6 +7,8 @@ Run: ``python benchmarks/tangential_compliance.py`` (about 3 minutes on 2 cores)
   angle 1.8-60 degrees; cor_t, rebound angle, omega_out) with ``fitting.fit`` (3 starts, the
   CLI's defaults), then the root-mean-square of model minus data per observable, computed the
   same way for both (``jaximpact.simulate`` at the fitted values, at the data's impacts).
+- The cost of the option: a warm ``simulate`` of 200 impacts (3.9 m/s, 0.5-65 degrees) of each
+  scene at the physical G*, median of 7 runs, and the mean step count.
 - The rigid model unchanged by the option: the outputs and step counts of 15 impacts of each
   embedded rigid scene, against the same run of the commit before issue 14 when its source is
   given (``--before DIR``, a checkout of ``jaximpact/`` from that commit): bitwise equality.
@@ -66,6 +68,25 @@ def rigid_unchanged(before):
     return same, steps
 
 
+def cost():
+    import statistics
+    import time
+
+    angles = np.linspace(0.5, 65.0, 200)
+    out = {}
+    for name in ("kharaz2001", "kharaz2001_mindlin"):
+        scene = ji.load_scene(name)
+        jax.block_until_ready(ji.simulate(scene, 3.9, angles).vt_out)  # compile
+        times = []
+        for _ in range(7):
+            start = time.perf_counter()
+            res = ji.simulate(scene, 3.9, angles)
+            jax.block_until_ready(res.vt_out)
+            times.append(time.perf_counter() - start)
+        out[name] = (statistics.median(times), float(np.mean(np.asarray(res.steps))))
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--before", help="directory holding jaximpact/ of the commit before")
@@ -86,6 +107,8 @@ def main():
             f"| {name} ({status}) | {fitted} | {rms['cor_t']:.4f} | "
             f"{rms['rebound_angle_deg']:.3f} | {rms['omega_out']:.1f} |"
         )
+    for name, (seconds, steps) in cost().items():
+        print(f"{name}: 200 impacts warm, median of 7: {seconds:.3f} s; mean steps {steps:.0f}")
     if args.before:
         same, steps = rigid_unchanged(args.before)
         print(f"rigid scenes bitwise unchanged against {args.before}: {same}; steps {steps}")
