@@ -71,6 +71,9 @@ def scene_report(scene_arg=None) -> str:
             why = "given"
         lines.append(f"  C_{name}                 {_g(value)} s/m  ({why})")
     lines.append(f"  friction            {_g(c.friction)}")
+    if m.tangential == "mindlin":
+        why = "from E1, nu1, E2, nu2" if "E1" in raw and "G_star" not in raw else "given"
+        lines.append(f"  G_star              {_g(c.G_star)} Pa  ({why}; tangential k_t = 8 G* a)")
 
     lines.append("model")
     lines.append(f"  rotation            {m.rotation}")
@@ -79,6 +82,7 @@ def scene_report(scene_arg=None) -> str:
     if m.rolling_moments == "lambda":
         lines.append(f"  lambda              {_g(m.lambda_)} N m")
     lines.append(f"  friction_load       {m.friction_load}")
+    lines.append(f"  tangential          {m.tangential}")
 
     speed, angle, omega0 = float(i.speed), float(i.angle_deg), float(i.omega0)
     v_n = speed * math.cos(math.radians(angle))
