@@ -282,7 +282,8 @@ def fit(
     - `scene`: the `jaximpact.Scene`; it gives every parameter not fitted and, unless
       `initial` says otherwise, the starting values of the fitted ones.
     - `observations`: an `Observations` or the path of a data file (wide or long CSV).
-    - `params`: names to fit, from ``C_A, C_H, f0, friction, K, lambda, radius, density``.
+    - `params`: names to fit, from ``C_A, C_H, f0, friction, K, G_star, lambda, radius,
+      density`` (``G_star`` with ``model.tangential = "mindlin"``).
     - `initial`: starting values ``{name: value}`` (SI) overriding the scene's.
     - `solver`: ``"lm"`` (Levenberg-Marquardt, default), ``"adam"`` or ``"lbfgs"`` (optax).
     - `starts`: number of starts: the initial guess, then a Latin-hypercube spread of
@@ -306,7 +307,7 @@ def fit(
     malformed data file.
     """
     t_start = time.perf_counter()
-    names = check_names(params)
+    names = check_names(params, scene)
     if solver not in SOLVERS:
         raise FitError(f"unknown solver {solver!r}; choose from {', '.join(SOLVERS)}")
     if jacobian not in JACOBIAN_MODES:

@@ -68,6 +68,7 @@ FITTABLE = {
     "f0": ("contact", "f0"),
     "friction": ("contact", "friction"),
     "K": ("contact", "K"),
+    "G_star": ("contact", "G_star"),  # with model.tangential = "mindlin"
     "lambda": ("model", "lambda_"),
     "radius": ("particle", "radius"),
     "density": ("particle", "density"),
@@ -107,11 +108,12 @@ def default_scales(observable, speed, radius) -> np.ndarray:
     return np.where(observable == "rebound_angle_deg", 1.0, scale)
 
 
-def check_names(params: Sequence[str]) -> tuple[str, ...]:
-    """Validate parameter names.
+def check_names(params: Sequence[str], scene: jaximpact.Scene | None = None) -> tuple[str, ...]:
+    """Validate parameter names (and, given the scene, that it uses each of them).
 
     Raises:
-        FitError: no names, an unknown name, or a repeated name.
+        FitError: no names, an unknown name, a repeated name, or ``G_star`` for a scene
+            without the Mindlin tangential spring.
     """
     params = tuple(params)
     if not params:
@@ -121,6 +123,11 @@ def check_names(params: Sequence[str]) -> tuple[str, ...]:
             raise FitError(f"unknown parameter {name!r}; fittable: {', '.join(FITTABLE)}")
     if len(set(params)) != len(params):
         raise FitError(f"parameter named twice in {list(params)}")
+    if scene is not None and "G_star" in params and scene.model.tangential != "mindlin":
+        raise FitError(
+            f'G_star is used only with model.tangential = "mindlin" (the scene has '
+            f'"{scene.model.tangential}"); e.g. the embedded scene kharaz2001_mindlin'
+        )
     return params
 
 
@@ -179,7 +186,7 @@ class Objective:
         method: str | None = None,
         check_values: Sequence[Mapping[str, float]] = (),
     ):
-        self.params = check_names(params)
+        self.params = check_names(params, scene)
         if not isinstance(observations, Observations):
             observations = load_observations(observations)
         obs = observations

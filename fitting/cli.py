@@ -14,7 +14,8 @@ TOML file; DATA an embedded data set name or a CSV file (wide or long form; READ
 data"). With one positional argument it is the data: an embedded data set brings its own
 scene (`jaximpact fit kharaz2001 --params friction`), a file uses the embedded table1 scene.
 Embedded data: kharaz2001 (Kharaz, Gorham & Salman 2001: 5 mm alumina spheres on glass at
-3.9 m/s, 0-60 degrees; cor_t, omega_out, rebound_angle_deg).
+3.9 m/s, 0-60 degrees; cor_t, omega_out, rebound_angle_deg); kharaz2001_mindlin: the same
+data with the scene of that name (tangential compliance: `--params friction G_star`).
 
 Without sigma columns each observable is weighted by a default scale (cor_n, cor_t: 0.01;
 vt_out: 1 % of the speed; omega_out: 1 % of speed/radius; rebound_angle_deg: 1 degree) and
@@ -56,7 +57,7 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
         nargs="+",
         required=True,
         metavar="NAME",
-        help="parameters to fit: C_A C_H f0 friction K lambda radius density",
+        help="parameters to fit: C_A C_H f0 friction K G_star lambda radius density",
     )
     p.add_argument(
         "-o", "--output", metavar="FIT.json", help="write the result as JSON (atomically)"
@@ -106,7 +107,7 @@ def _kharaz2001():
 
 
 #: Observation data sets shipped with fitting, by name (each may have a scene of that name).
-EMBEDDED_DATA = {"kharaz2001": _kharaz2001}
+EMBEDDED_DATA = {"kharaz2001": _kharaz2001, "kharaz2001_mindlin": _kharaz2001}
 
 #: Exit status of a fit that ran but whose result cannot be trusted (see the description).
 EXIT_NOT_CONVERGED = 3

@@ -10,7 +10,8 @@ State (a dict of scalars), by what the terms need:
   ``loss_hertz_damping``;
 - adhesion: ``loss_adhesion_damping``;
 - tangential: ``vt``, ``loss_friction`` and ``slide_time`` (the time until rolling first starts);
-- rotation: ``w``; rolling moments: ``loss_rolling``.
+- rotation: ``w``; rolling moments: ``loss_rolling``;
+- the Mindlin tangential spring (``Terms.mindlin``): ``xi``, its elastic displacement.
 
 With ``Terms.ledger = False`` (``[solver] outputs = "rebound"``) only the motion ``n, ndot, vt,
 w`` is integrated: every scalar state costs the vmapped step loop about as much as the force
@@ -18,6 +19,7 @@ laws, so dropping the six bookkeeping states roughly halves the cost of a sweep 
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from . import _laws as laws
@@ -40,6 +42,10 @@ class Terms(eqx.Module):
     # pull toward rolling inside the slip width.
     contact_floor: float = eqx.field(static=True, default=0.0)
     slip_relaxation: float = eqx.field(static=True, default=0.0)
+    # model.tangential = "mindlin": the elastic tangential spring (state xi) replaces the rigid
+    # friction law; cap_width is its regularization width at the Coulomb cap (fraction of it).
+    mindlin: bool = eqx.field(static=True, default=False)
+    cap_width: float = eqx.field(static=True, default=0.0)
 
     @property
     def has_moments(self):
@@ -53,6 +59,8 @@ def initial_state(terms: Terms, vt0, w0, dtype):
         y["loss_adhesion_damping"] = zero
     if terms.tangential:
         y.update(vt=jnp.asarray(vt0, dtype), loss_friction=zero, slide_time=zero)
+        if terms.mindlin:
+            y["xi"] = zero
         if terms.rotation:
             y["w"] = jnp.asarray(w0, dtype)
             if terms.has_moments:
@@ -62,7 +70,7 @@ def initial_state(terms: Terms, vt0, w0, dtype):
     return y
 
 
-MOTION = ("n", "ndot", "vt", "w")
+MOTION = ("n", "ndot", "vt", "w", "xi")
 
 
 def normal_energy(terms: Terms, p: ScaledParameters, y):
@@ -89,23 +97,30 @@ def capture_margin(terms: Terms, p: ScaledParameters, y):
 
 
 def mechanical_energy(terms: Terms, p: ScaledParameters, y):
-    """Normal energy plus tangential and rotational kinetic energy."""
+    """Normal energy plus tangential and rotational kinetic energy (and the Mindlin spring's)."""
     e = normal_energy(terms, p, y)
     if terms.tangential:
         e = e + 0.5 * y["vt"] ** 2
         if terms.rotation:
             e = e + 0.5 * p.inertia * y["w"] ** 2
+        if terms.mindlin:
+            e = e + tangential_energy(terms, p, y)
     return e
 
 
-def contact_loads(terms: Terms, p: ScaledParameters, y):
-    """Every force and moment on the sphere at state ``y`` (a dict; absent terms are left out)."""
-    n, ndot = y["n"], y["ndot"]
-    w = y["w"] if (terms.tangential and terms.rotation) else jnp.zeros_like(n)
+def tangential_energy(terms: Terms, p: ScaledParameters, y):
+    """Energy of the Mindlin spring, ``k_t(n) xi^2 / 2``: the potential of both its forces."""
+    k_t = laws.mindlin_stiffness(y["n"], p.radius, p.G_star, terms.contact_floor)
+    return 0.5 * k_t * y["xi"] ** 2
+
+
+def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w):
+    """The normal forces (and the ring's peeling moment ``M_A``, or None)."""
     f = {}
     f["F_H"] = laws.hertz_force(n, p.radius, p.K)
     f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
     F_n = f["F_H"] + f["F_HD"]
+    M_A = None
     if terms.adhesion:
         # The spin enters the ring only with the analytical moments, where the ring also
         # yields M_A; otherwise the spin-free ring keeps the adhesion damping dissipative.
@@ -116,6 +131,18 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
         )
         F_n = F_n + f["F_A"] + f["F_AD"]
     f["F_n"] = F_n
+    return f, M_A
+
+
+def _friction_load(terms: Terms, f):
+    return jnp.abs(f["F_n"]) if terms.friction_load == "net" else -f["F_H"]
+
+
+def contact_loads(terms: Terms, p: ScaledParameters, y):
+    """Every force and moment on the sphere at state ``y`` (a dict; absent terms are left out)."""
+    n, ndot = y["n"], y["ndot"]
+    w = y["w"] if (terms.tangential and terms.rotation) else jnp.zeros_like(n)
+    f, M_A = _normal_loads(terms, p, n, ndot, w)
     if not terms.tangential:
         return f
     M = jnp.zeros_like(n)
@@ -127,8 +154,10 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
         else:
             M = laws.lambda_moment(n, w, p.radius, p.C_A, p.lam, terms.contact_floor)
         f["M_roll"] = M
+    if terms.mindlin:
+        return _mindlin_loads(terms, p, y, f, w, M)
     if terms.friction_load == "net":
-        load = jnp.abs(F_n)
+        load = jnp.abs(f["F_n"])
     else:
         load = -f["F_H"]
     slip = y["vt"] - p.radius * w
@@ -140,6 +169,42 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
     f["slip"] = slip
     f["F_t"] = laws.friction_force(
         slip, load, p.friction, hold, terms.slip_width, terms.slip_relaxation * m_eff
+    )
+    return f
+
+
+def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, w, M):
+    """The Mindlin spring: tangential force ``-k_t xi``, its normal force and the slip rate.
+
+    The spring has the potential ``U = k_t(n) xi^2 / 2``, so besides the tangential force it
+    pushes the sphere out with ``-dU/dn = -k_t'(n) xi^2 / 2`` (at most ~0.2 f^2 of the normal
+    force); with it the spring's energy is returned to the motion by separation and the
+    ledger closes with the slip loss alone. The Coulomb cap ``f N`` takes the load without that
+    force (as the reference does). See docs/physics.md, "Tangential compliance".
+    """
+    n, ndot, xi = y["n"], y["ndot"], y["xi"]
+    floor = terms.contact_floor
+    k_t = laws.mindlin_stiffness(n, p.radius, p.G_star, floor)
+    dk_dn = laws.mindlin_stiffness_slope(n, p.radius, p.G_star, floor)
+    f["F_U"] = -0.5 * dk_dn * xi * xi
+    f["F_n"] = f["F_n"] + f["F_U"]
+    F_t = -k_t * xi
+    wdot = (-p.radius * F_t + M) / p.inertia if terms.rotation else jnp.zeros_like(n)
+
+    def limit_of(n_, ndot_, w_):
+        return p.friction * _friction_load(terms, _normal_loads(terms, p, n_, ndot_, w_)[0])
+
+    limit, limit_rate = jax.jvp(limit_of, (n, ndot, w), (ndot, f["F_n"], wdot))
+    # c = f N / k_t and its rate (k_t > 0 above -floor; outside, the cap is irrelevant).
+    ok = k_t > 0
+    safe_k = jnp.where(ok, k_t, 1.0)
+    cap_rate = jnp.where(ok, (limit_rate - limit * dk_dn * ndot / safe_k) / safe_k, 0.0)
+    slip = y["vt"] - p.radius * w
+    f["slip"] = slip
+    f["F_t"] = F_t
+    f["k_t"] = k_t
+    f["slip_rate"] = laws.mindlin_slip_rate(
+        xi, slip, limit, k_t, cap_rate, terms.cap_width, terms.slip_width
     )
     return f
 
@@ -163,7 +228,11 @@ class ImpactField(eqx.Module):
             dy["loss_adhesion_damping"] = -f["F_AD"] * ndot
         if terms.tangential:
             dy["vt"] = f["F_t"]
-            dy["loss_friction"] = -f["F_t"] * f["slip"]
+            if terms.mindlin:
+                dy["xi"] = f["slip"] - f["slip_rate"]
+                dy["loss_friction"] = f["k_t"] * y["xi"] * f["slip_rate"]
+            else:
+                dy["loss_friction"] = -f["F_t"] * f["slip"]
             # Latch: slide_time follows t until the slip first falls below the width, then
             # stays. (Excluded from error control: its derivative jumps once, at that moment.)
             still_sliding = (jnp.abs(f["slip"]) > terms.slip_width) & (

@@ -127,3 +127,43 @@ def friction_force(slip, load, friction, hold_force, width, restoring=0.0):
     z = slip / width
     hold = jnp.clip(hold_force - restoring * slip, -limit, limit)
     return (1.0 - smooth_step_flat(z)) * hold - limit * smooth_sign_flat(z)
+
+
+def mindlin_stiffness(n, radius, G_star, n_min=0.0):
+    """Tangential (Mindlin) stiffness of the contact, ``k_t = 8 G* a`` with ``a = sqrt(r n)``.
+
+    Mindlin (1949): the no-slip tangential compliance of a circular Hertz contact of radius
+    ``a``. (``n_min``: the continuation below the contact floor, see contact_radius.)
+    """
+    return 8.0 * G_star * contact_radius(n, radius, n_min)
+
+
+def mindlin_stiffness_slope(n, radius, G_star, n_min=0.0):
+    """``d k_t / d n = 8 G* da/dn`` (``da/dn = sqrt(r) / (2 sqrt(n))``, continued as ``a``)."""
+    if n_min <= 0.0:
+        positive = n > 0
+        return jnp.where(positive, 4.0 * G_star * jnp.sqrt(radius / jnp.where(positive, n, 1.0)), 0)
+    slope = 4.0 * G_star * jnp.sqrt(radius / jnp.maximum(n, n_min))
+    return jnp.where(n > -n_min, slope, 0.0)
+
+
+def mindlin_slip_rate(xi, slip, load_limit, k_t, cap_rate, cap_width, slip_width):
+    """Rate at which the contact slips at the Coulomb cap: ``xi' = slip - rate`` (Hertz units).
+
+    ``xi`` is the elastic tangential displacement, the spring force on the sphere ``-k_t xi``
+    and the cap ``|k_t xi| <= f N = load_limit``, i.e. ``|xi| <= c = f N / k_t``; ``cap_rate``
+    is ``dc/dt``. Exact rule (elastic-perfectly plastic, the history spring of DEM codes):
+    below the cap the contact sticks (``xi' = slip``); at the cap it slips just enough that
+    ``|xi|`` follows ``c``, i.e. ``rate = sign(xi) max(slip sign(xi) - c', 0)``. Regularized:
+    the switch ``phi`` rises from 0 to exactly 1 over the last ``cap_width`` (a fraction of
+    ``c``) below the cap, with the flat-zero step of the friction law; ``max(x, 0)`` becomes
+    ``(x + sqrt(x^2 + slip_width^2)) / 2``. Both keep the dissipated power
+    ``k_t xi rate = k_t |xi| phi max(...)`` >= 0 and ``|xi| <= c`` once reached.
+    """
+    force = jnp.abs(k_t * xi)
+    ok = load_limit > 0
+    ratio = jnp.where(ok, force / jnp.where(ok, load_limit, 1.0), 2.0)
+    phi = 1.0 - smooth_step_flat(jnp.maximum(1.0 - ratio, 0.0) / cap_width)
+    direction = jnp.sign(xi)
+    drive = slip * direction - cap_rate
+    return direction * phi * 0.5 * (drive + jnp.sqrt(drive * drive + slip_width * slip_width))

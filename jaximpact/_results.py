@@ -59,6 +59,9 @@ class ImpactResult(eqx.Module):
     loss_friction: jax.Array
     loss_rolling: jax.Array
     steps: jax.Array
+    # With model.tangential = "mindlin": the part of energy_out held by the tangential spring
+    # (0 after a rebound: the spring has given its energy back by separation); else None.
+    energy_tangential: jax.Array | None = None
 
     @property
     def status_names(self) -> np.ndarray:

@@ -17,6 +17,7 @@ INERTIA_FACTOR = 0.4  # k^2 / r^2 of a solid sphere (CONVENTIONS)
 
 RollingMoments = Literal["none", "analytical", "lambda"]
 FrictionLoad = Literal["net", "hertz"]
+TANGENTIAL_MODELS = ("rigid", "mindlin")
 SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
 
 
@@ -87,6 +88,9 @@ class Contact(eqx.Module):
     - `f0`: adhesion ring line force (N/m, >= 0).
     - `C_A`, `C_H`: adhesion and Hertzian damping constants (s/m, >= 0).
     - `friction`: Coulomb coefficient (>= 0).
+    - `G_star`: effective shear modulus (Pa, > 0) of the tangential (Mindlin) stiffness
+      ``k_t = 8 G* a``, ``1/G* = (2 - nu1)/G1 + (2 - nu2)/G2``; used only with
+      ``model.tangential = "mindlin"`` (0, the default, means "not given").
     """
 
     K: jax.Array = eqx.field(converter=_array)
@@ -94,10 +98,11 @@ class Contact(eqx.Module):
     C_A: jax.Array = eqx.field(converter=_array)
     C_H: jax.Array = eqx.field(converter=_array)
     friction: jax.Array = eqx.field(converter=_array)
+    G_star: jax.Array = eqx.field(converter=_array, default=0.0)
 
     def __check_init__(self):
         check_range("contact.K", self.K, positive=True)
-        for name in ("f0", "C_A", "C_H", "friction"):
+        for name in ("f0", "C_A", "C_H", "friction", "G_star"):
             check_range(f"contact.{name}", getattr(self, name), nonnegative=True)
 
 
@@ -112,6 +117,9 @@ class Model(eqx.Module):
     - `friction_load`: ``"net"`` (``|F_n|``, eq. 6, default) or ``"hertz"`` (compressive Hertz
       force ``K sqrt(r) n^1.5``).
     - `lambda_`: the lambda of the constant-lambda law (N m, >= 0); TOML key ``lambda``.
+    - `tangential`: ``"rigid"`` (default: Coulomb friction on a rigid contact) or ``"mindlin"``
+      (an elastic tangential spring ``8 G* a`` capped by Coulomb friction; needs
+      ``contact.G_star``; docs/physics.md, "Tangential compliance").
     """
 
     rotation: bool = eqx.field(static=True, default=True)
@@ -119,8 +127,13 @@ class Model(eqx.Module):
     rolling_moments: str = eqx.field(static=True, default="analytical")
     friction_load: str = eqx.field(static=True, default="net")
     lambda_: jax.Array = eqx.field(converter=_array, default=0.0)
+    tangential: str = eqx.field(static=True, default="rigid")
 
     def __check_init__(self):
+        if self.tangential not in TANGENTIAL_MODELS:
+            raise SceneError(
+                f"model.tangential must be 'rigid' or 'mindlin', got {self.tangential!r}"
+            )
         if self.rolling_moments not in ("none", "analytical", "lambda"):
             raise SceneError(
                 "model.rolling_moments must be one of 'none', 'analytical', "
@@ -223,6 +236,14 @@ class Scene(eqx.Module):
     impact: Impact = eqx.field(default_factory=lambda: Impact(speed=1.0))
     solver: Solver = eqx.field(default_factory=Solver)
 
+    def __check_init__(self):
+        if self.model.tangential == "mindlin":
+            check_range(
+                "contact.G_star (needed by model.tangential = 'mindlin')",
+                self.contact.G_star,
+                positive=True,
+            )
+
     def replace(self, **sections):
         """A copy with fields replaced: ``scene.replace(contact={"f0": 1.0}, solver={...})``."""
         new = self
@@ -248,6 +269,19 @@ def hertz_stiffness(E1, nu1, E2, nu2):
     k1 = (1 - nu1**2) / (math.pi * E1)
     k2 = (1 - nu2**2) / (math.pi * E2)
     return 4.0 / (3.0 * math.pi * (k1 + k2))
+
+
+def shear_modulus_star(E1, nu1, E2, nu2):
+    """``G* = 1 / ((2 - nu1)/G1 + (2 - nu2)/G2)`` with ``G_i = E_i / (2 (1 + nu_i))``, in Pa.
+
+    The effective shear modulus of Mindlin's tangential stiffness ``8 G* a`` (a rigid anvil:
+    ``E2 -> inf``, ``G* = G1 / (2 - nu1)``).
+    """
+    total = 0.0
+    for E, nu in ((E1, nu1), (E2, nu2)):
+        if math.isfinite(E):
+            total += (2.0 - nu) * 2.0 * (1.0 + nu) / E
+    return 1.0 / total
 
 
 def damping_from_zeta(zeta, radius, density, K, reference_speed):

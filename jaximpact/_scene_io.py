@@ -15,6 +15,7 @@ from ._scene import (
     Solver,
     damping_from_zeta,
     hertz_stiffness,
+    shear_modulus_star,
 )
 
 ALLOWED = {
@@ -32,8 +33,9 @@ ALLOWED = {
         "zeta_H",
         "reference_speed",
         "friction",
+        "G_star",
     },
-    "model": {"rotation", "adhesion", "rolling_moments", "lambda", "friction_load"},
+    "model": {"rotation", "adhesion", "rolling_moments", "lambda", "friction_load", "tangential"},
     "impact": {"speed", "angle_deg", "omega0"},
     "solver": {
         "outputs",
@@ -185,15 +187,28 @@ def scene_from_dict(data: dict) -> Scene:
     ):
         raise SceneError("contact.reference_speed is only used with zeta_A / zeta_H")
     f0 = number("contact", "f0", 0.0)
+    if has("contact", "G_star"):
+        G_star = number("contact", "G_star")
+        if not G_star > 0:
+            raise SceneError(f"contact.G_star must be > 0 (Pa), got {G_star!r}")
+    elif elastic:  # from the same moduli as K
+        G_star = shear_modulus_star(*(number("contact", k) for k in ("E1", "nu1", "E2", "nu2")))
+    else:
+        G_star = 0.0  # not given: only model.tangential = "mindlin" needs it
     contact = Contact(
-        K=K, f0=f0, C_A=damping["A"], C_H=damping["H"], friction=number("contact", "friction", 0.0)
+        K=K,
+        f0=f0,
+        C_A=damping["A"],
+        C_H=damping["H"],
+        friction=number("contact", "friction", 0.0),
+        G_star=G_star,
     )
 
     m = data.get("model", {})
     for key in ("rotation", "adhesion"):
         if key in m and not isinstance(m[key], bool):
             raise SceneError(f"model.{key} must be true or false, got {m[key]!r}")
-    for key in ("rolling_moments", "friction_load"):
+    for key in ("rolling_moments", "friction_load", "tangential"):
         if key in m and not isinstance(m[key], str):
             raise SceneError(f"model.{key} must be a string, got {m[key]!r}")
     model = Model(
@@ -202,7 +217,13 @@ def scene_from_dict(data: dict) -> Scene:
         rolling_moments=m.get("rolling_moments", "analytical"),
         friction_load=m.get("friction_load", "net"),
         lambda_=number("model", "lambda", 0.0),
+        tangential=m.get("tangential", "rigid"),
     )
+    if model.tangential == "mindlin" and not G_star > 0:
+        raise SceneError(
+            'model.tangential = "mindlin" needs contact.G_star (Pa, > 0) or contact.E1, nu1, '
+            "E2, nu2"
+        )
     if model.rolling_moments == "lambda" and "lambda" not in m:
         raise SceneError('model.rolling_moments = "lambda" needs model.lambda (N m)')
 

@@ -71,6 +71,9 @@ def scene_report(scene_arg=None) -> str:
             why = "given"
         lines.append(f"  C_{name}                 {_g(value)} s/m  ({why})")
     lines.append(f"  friction            {_g(c.friction)}")
+    if m.tangential == "mindlin":
+        why = "from E1, nu1, E2, nu2" if "E1" in raw and "G_star" not in raw else "given"
+        lines.append(f"  G_star              {_g(c.G_star)} Pa  ({why}; tangential k_t = 8 G* a)")
 
     lines.append("model")
     lines.append(f"  rotation            {m.rotation}")
@@ -79,6 +82,7 @@ def scene_report(scene_arg=None) -> str:
     if m.rolling_moments == "lambda":
         lines.append(f"  lambda              {_g(m.lambda_)} N m")
     lines.append(f"  friction_load       {m.friction_load}")
+    lines.append(f"  tangential          {m.tangential}")
 
     speed, angle, omega0 = float(i.speed), float(i.angle_deg), float(i.omega0)
     v_n = speed * math.cos(math.radians(angle))
@@ -124,10 +128,16 @@ def scene_report(scene_arg=None) -> str:
         used.append("adhesion ring force and adhesion damping")
     else:
         left.append("adhesion (" + ("model.adhesion = false" if not m.adhesion else "f0 = 0") + ")")
-    if terms.tangential:
+    if terms.mindlin:
+        used.append(
+            f"Mindlin tangential spring 8 G* a, capped by friction ({m.friction_load} normal load)"
+        )
+    elif terms.tangential:
         used.append(f"friction ({m.friction_load} normal load)")
     else:
         left.append("tangential motion and friction (normal impact without spin)")
+    if terms.tangential and not terms.mindlin:
+        left.append('tangential compliance (model.tangential = "rigid")')
     if terms.rotation:
         used.append("rotation (spin driven by the friction moment)")
     elif terms.tangential:

@@ -18,6 +18,7 @@ _SECTIONS = {
     "friction": ("contact", "friction"), "K": ("contact", "K"),
     "radius": ("particle", "radius"), "density": ("particle", "density"),
     "lambda": ("model", "lambda_"),
+    "G_star": ("contact", "G_star"),  # model.tangential = "mindlin" only
 }  # fmt: skip
 
 

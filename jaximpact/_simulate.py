@@ -11,8 +11,16 @@ from . import _dynamics as dyn
 from . import _fast_loop
 from ._results import ImpactResult, Status
 from ._safe import smooth_sign_flat
-from ._scene import INERTIA_FACTOR, Scene, SceneError, _is_concrete, check_impact
+from ._scene import (
+    INERTIA_FACTOR,
+    Scene,
+    SceneError,
+    _is_concrete,
+    check_impact,
+    check_range,
+)
 from ._solvers import (
+    CAP_WIDTH,
     CONTACT_FLOOR,
     SLIP_RELAXATION,
     default_slip_width,
@@ -27,8 +35,9 @@ T_MAX = 1e5  # in Hertz times; the step limit, not this, bounds a slow impact
 
 
 def scene_parameters(scene: Scene) -> dict:
-    """The scene's float parameters by their impacts-CSV column names."""
-    return {
+    """The scene's float parameters by their impacts-CSV column names (and ``G_star`` when the
+    scene uses the Mindlin tangential spring)."""
+    params = {
         "radius": scene.particle.radius,
         "density": scene.particle.density,
         "K": scene.contact.K,
@@ -38,6 +47,9 @@ def scene_parameters(scene: Scene) -> dict:
         "friction": scene.contact.friction,
         "lambda": scene.model.lambda_,
     }
+    if scene.model.tangential == "mindlin":
+        params["G_star"] = scene.contact.G_star
+    return params
 
 
 class Integration(eqx.Module):
@@ -63,6 +75,10 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
     Under ``jit``/``grad`` the values are traced and only the switches decide.
     """
     m, s = scene.model, scene.solver
+    if m.tangential == "mindlin":
+        check_range(
+            "contact.G_star (model.tangential = 'mindlin')", params["G_star"], positive=True
+        )
     tangential = not _all([angle_deg, omega0], lambda v: v == 0)
     adhesion = m.adhesion and not _all([params["f0"]], lambda v: v == 0)
     moments = m.rolling_moments
@@ -82,6 +98,8 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         ledger=s.outputs == "full",
         contact_floor=CONTACT_FLOOR,
         slip_relaxation=SLIP_RELAXATION,
+        mindlin=tangential and m.tangential == "mindlin",
+        cap_width=CAP_WIDTH if m.tangential == "mindlin" else 0.0,
     )
 
 
@@ -118,6 +136,7 @@ def _scaled(params, speed, angle_deg, omega0):
         friction=params["friction"],
         lam=params["lambda"],
         inertia_factor=INERTIA_FACTOR,
+        G_star=params.get("G_star"),
     )
     return p, units
 
@@ -125,7 +144,7 @@ def _scaled(params, speed, angle_deg, omega0):
 # Only the motion and the peak overlap drive the step size: the ledger integrals follow it
 # (their kinks, e.g. max(ndot, 0) at the turning point, would only cost rejected steps), and
 # slide_time (a latch that jumps once, when rolling starts) must not drive it at all.
-CONTROLLED_STATES = ("n", "ndot", "vt", "w", "peak")
+CONTROLLED_STATES = ("n", "ndot", "vt", "w", "xi", "peak")
 
 
 def _error_norm(error):
@@ -161,11 +180,13 @@ def _shell_entry(terms: dyn.Terms, p: ScaledParameters, dtype) -> dict:
     return shell
 
 
-def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
+def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot, spring=None) -> dict:
     """The separation through the shell below the floor, in closed form (see ``_shell_entry``).
 
     ``ndot`` (< 0) is the normal velocity at the floor; returns the velocity at ``n = 0`` and
     ``ok = False`` where the normal energy runs out inside the shell (then a capture).
+    ``spring``: the Mindlin spring's energy at the floor, which its normal force returns to the
+    normal motion in the shell (its tangential impulse there, ``O(floor^2.5)``, is left out).
     """
     eps = terms.contact_floor
     sr = jnp.sqrt(p.radius)
@@ -178,6 +199,8 @@ def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
         adhesion = (4.0 / 3.0) * jnp.pi * p.f0 * sr * eps**1.5
         shell["loss_adhesion_damping"] = adhesion * p.C_A * speed
         work = work - adhesion - shell["loss_adhesion_damping"]
+    if spring is not None:
+        work = work + spring
     energy = ndot**2 + 2.0 * work
     shell["ok"] = energy > 0
     out_speed = jnp.sqrt(jnp.where(shell["ok"], energy, 1.0))
@@ -248,7 +271,9 @@ def _solve_one(
     entry = _shell_entry(terms, p, dtype)
     y0["n"] = jnp.asarray(floor, dtype)
     y0["ndot"] = entry["ndot"]
-    if terms.tangential:
+    # The Mindlin spring starts unloaded at the floor (the friction impulse in the entry shell,
+    # O(floor^2.5), is left out).
+    if terms.tangential and not terms.mindlin:
         entry_friction = _shell_friction(terms, p, y0, entry, entry["ndot"])
         for k in ("vt", "w"):
             if k in y0:
@@ -305,7 +330,8 @@ def _solve_one(
 
     finite = jnp.all(jnp.stack([jnp.isfinite(v) for v in jax.tree_util.tree_leaves(y)]))
     event_hit = sol.result == diffrax.RESULTS.event_occurred
-    exit_ = _shell_exit(terms, p, y["ndot"])
+    spring = dyn.tangential_energy(terms, p, y) if terms.mindlin else None
+    exit_ = _shell_exit(terms, p, y["ndot"], spring)
     if terms.adhesion:
         # At the event one of the two is ~0 and the other positive. A sphere whose normal
         # energy runs out inside the shell below the floor is captured too.
@@ -313,7 +339,9 @@ def _solve_one(
     else:
         captured = False
     separated = event_hit & ~captured
-    if terms.tangential:
+    if terms.mindlin:  # the spring's energy went into the normal motion in the shell
+        y["xi"] = jnp.where(separated, 0.0, y["xi"])
+    if terms.tangential and not terms.mindlin:
         exit_.update(_shell_friction(terms, p, y, exit_, y["ndot"]))
         for k in ("vt", "w"):
             if k in y:
@@ -391,8 +419,11 @@ def _solve_one(
         energy_out=dyn.mechanical_energy(terms, p, y) * e_unit,
         **losses,
     )
+    if terms.mindlin:  # the part of energy_out held by the spring (0 after a rebound)
+        out["energy_tangential"] = dyn.tangential_energy(terms, p, y) * e_unit
     if not terms.ledger:
-        out.update({k: nan for k in ("energy_in", "energy_out", *losses)})
+        ledger = ("energy_in", "energy_out", "energy_tangential", *losses)
+        out.update({k: nan for k in ledger if k in out})
     out = {k: jnp.where(failed, nan, v).astype(dtype) for k, v in out.items()}
     return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
 

@@ -38,6 +38,10 @@ CONTACT_FLOOR = 1e-4
 # against an impact (~3 Hertz times) yet slow enough for Tsit5's steps.
 SLIP_RELAXATION = 20.0
 
+# Width of the Mindlin spring's switch to slip, as a fraction of the Coulomb cap (see
+# laws.mindlin_slip_rate): the spring force reaches the cap to about this fraction.
+CAP_WIDTH = 1e-2
+
 EXPLICIT = {"tsit5": LaneTsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8}
 IMPLICIT = {"kvaerno3": diffrax.Kvaerno3, "kvaerno5": diffrax.Kvaerno5}
 

@@ -44,9 +44,12 @@ class ScaledParameters(eqx.Module):
     friction: jax.Array
     lam: jax.Array
     inertia: jax.Array  # k^2 = kappa r^2
+    G_star: jax.Array | None = None  # only with the Mindlin tangential spring
 
     @staticmethod
-    def from_si(u: HertzUnits, *, radius, K, f0, C_A, C_H, friction, lam, inertia_factor):
+    def from_si(
+        u: HertzUnits, *, radius, K, f0, C_A, C_H, friction, lam, inertia_factor, G_star=None
+    ):
         L, T, m = u.length, u.time, u.mass
         r = radius / L
         return ScaledParameters(
@@ -58,4 +61,5 @@ class ScaledParameters(eqx.Module):
             friction=jnp.asarray(friction),
             lam=lam * T**2 / (m * L**2),
             inertia=inertia_factor * r * r,
+            G_star=None if G_star is None else G_star * L * T**2 / m,
         )

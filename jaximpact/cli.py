@@ -38,6 +38,7 @@ SECTION_OF = {
     "C_H": "contact",
     "friction": "contact",
     "lambda": "model",
+    "G_star": "contact",  # model.tangential = "mindlin"
 }
 PAPER_IMPACTS = {
     "speed": [1.66] * 3,
