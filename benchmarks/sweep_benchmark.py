@@ -150,6 +150,8 @@ PHASES = {
     "_atomic_write_table": "Parquet: encode the part file",
     "atomic_write_bytes": "part file: write, fsync, rename",
     "atomic_write_text": "manifest: write, fsync, rename",
+    "_Writer.submit": "wait for the writer thread (the chunk before)",
+    "_Writer.finish": "wait for the writer thread (the last chunk)",
 }
 
 
@@ -188,8 +190,10 @@ class PhaseTimer:
     def install(self, module):
         """Wrap ``module``'s functions named in PHASES, and the runner's compiled function."""
         for name in PHASES:
-            if callable(getattr(module, name, None)) and name != "dispatch":
-                setattr(module, name, self.wrap(name, getattr(module, name)))
+            owner, _, attribute = name.rpartition(".")
+            owner = getattr(module, owner, None) if owner else module
+            if callable(getattr(owner, attribute, None)) and name != "dispatch":
+                setattr(owner, attribute, self.wrap(name, getattr(owner, attribute)))
         runner = module._runner
 
         def wrapped_runner(*args, **kwargs):
@@ -314,45 +318,50 @@ def pipeline(work: Path, chunk: int, chunks: int, repeats: int, configs) -> list
     return rows
 
 
-def marginal(row: dict, kind: str) -> tuple[float, float, float]:
-    """Median wall times of ``N`` and ``2N`` and the marginal rate ``N / (t(2N) - t(N))``."""
-    t1 = float(np.median(row["wall"][f"{kind} n"]))
-    t2 = float(np.median(row["wall"][f"{kind} 2n"]))
+def marginal(row: dict, kind: str, clock: str = "wall") -> tuple[float, float, float]:
+    """Median times (``clock``: wall or CPU seconds) of ``N`` and ``2N`` impacts and the
+    marginal rate ``N / (t(2N) - t(N))``."""
+    t1 = float(np.median(row[clock][f"{kind} n"]))
+    t2 = float(np.median(row[clock][f"{kind} 2n"]))
     return t1, t2, row["n"] / (t2 - t1)
+
+
+def per_repeat(row: dict, clock: str) -> list[float]:
+    """The ratio of marginal rates (sweep / simulate) within each repeat."""
+    t = row[clock]
+    return [
+        (b2 - b1) / (a2 - a1)
+        for a1, a2, b1, b2 in zip(
+            t["sweep n"], t["sweep 2n"], t["simulate n"], t["simulate 2n"], strict=True
+        )
+    ]
 
 
 def report_pipeline(rows: list[dict], repeats: int) -> None:
     print(
-        "| precision | devices | sweep N / 2N (s) | sweep marginal (impacts/s) | "
+        "| precision | devices | clock | sweep N / 2N (s) | sweep marginal (impacts/s) | "
         "simulate N / 2N (s) | simulate marginal (impacts/s) | ratio | ratio per repeat | "
-        "CPU-s sweep / simulate (2N) | bitwise |"
+        "bitwise |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
-        s1, s2, sweep_rate = marginal(row, "sweep")
-        m1, m2, sim_rate = marginal(row, "simulate")
-        w = row["wall"]
-        per_repeat = [
-            (b2 - b1) / (a2 - a1)
-            for a1, a2, b1, b2 in zip(
-                w["sweep n"], w["sweep 2n"], w["simulate n"], w["simulate 2n"], strict=True
+        for clock in ("wall", "cpu"):
+            s1, s2, sweep_rate = marginal(row, "sweep", clock)
+            m1, m2, sim_rate = marginal(row, "simulate", clock)
+            print(
+                f"| {row['precision']} | {row['devices']} | {clock} | {s1:.2f} / {s2:.2f} | "
+                f"{sweep_rate:,.0f} | {m1:.2f} / {m2:.2f} | {sim_rate:,.0f} | "
+                f"**{sweep_rate / sim_rate:.2f}** | "
+                f"{', '.join(f'{r:.2f}' for r in per_repeat(row, clock))} | "
+                f"{'yes' if row['bitwise'] else 'no'} |"
             )
-        ]
-        cpu = (
-            f"{np.median(row['cpu']['sweep 2n']):.1f} / {np.median(row['cpu']['simulate 2n']):.1f}"
-        )
-        print(
-            f"| {row['precision']} | {row['devices']} | {s1:.2f} / {s2:.2f} | {sweep_rate:,.0f} | "
-            f"{m1:.2f} / {m2:.2f} | {sim_rate:,.0f} | **{sweep_rate / sim_rate:.2f}** | "
-            f"{', '.join(f'{r:.2f}' for r in per_repeat)} | {cpu} | "
-            f"{'yes' if row['bitwise'] else 'no'} |"
-        )
     print(
         f"\nN = {rows[0]['n']:,} impacts ({rows[0]['n'] // rows[0]['chunk']} chunks of "
-        f"{rows[0]['chunk']}); medians of {repeats} interleaved repeats; ratio = sweep's "
-        "marginal rate / simulate's from the median times; per repeat: the same within each "
-        "repeat. *bitwise*: every result column of the sweep equal to simulate's on the 2N "
-        "impacts.\n"
+        f"{rows[0]['chunk']}); medians of {repeats} interleaved repeats; *wall*: wall-clock "
+        "seconds, *cpu*: CPU-seconds of the process (all threads; rates per CPU-second); "
+        "ratio = sweep's marginal rate / simulate's from the median times; per repeat: the "
+        "same within each repeat. *bitwise*: every result column of the sweep equal to "
+        "simulate's on the 2N impacts.\n"
     )
     print("Where a sweep of 2N spends its time (exclusive wall time per phase, one run):\n")
     print("| precision | devices | thread | phase | ms per chunk | share of the sweep |")
@@ -360,7 +369,9 @@ def report_pipeline(rows: list[dict], repeats: int) -> None:
     for row in rows:
         n_chunks = 2 * row["n"] // row["chunk"]
         accounted = 0.0
-        for thread, name, seconds, _calls in row["profile"]:
+        order = list(PHASES)  # main thread first, then the writer's; phases in PHASES order
+        phases = sorted(row["profile"], key=lambda r: (r[0] != "MainThread", order.index(r[1])))
+        for thread, name, seconds, _calls in phases:
             if thread == "MainThread":
                 accounted += seconds
             print(
@@ -369,10 +380,20 @@ def report_pipeline(rows: list[dict], repeats: int) -> None:
             )
         rest = row["profile_wall_s"] - accounted
         print(
-            f"| {row['precision']} | {row['devices']} | MainThread | the rest (Python, "
-            f"directory checks, reading the manifest) | {1e3 * rest / n_chunks:.1f} | "
-            f"{rest / row['profile_wall_s']:.1%} |"
+            f"| {row['precision']} | {row['devices']} | MainThread | the rest (waiting for "
+            f"results where not timed above, Python, manifests read) | "
+            f"{1e3 * rest / n_chunks:.1f} | {rest / row['profile_wall_s']:.1%} |"
         )
+
+
+def report_from_output(path: str, repeats: int) -> None:
+    """Print the tables again from the JSON lines (``<!-- ... -->``) of earlier runs."""
+    rows = []
+    for file in path.split(","):
+        for line in Path(file).read_text().splitlines():
+            if line.startswith("<!-- "):
+                rows.append(json.loads(line[5:-4]))
+    report_pipeline(rows, repeats)
 
 
 def main() -> None:
@@ -394,6 +415,9 @@ def main() -> None:
         help="precision:devices, comma-separated",
     )
     parser.add_argument("--pipeline-worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--pipeline-report", metavar="FILES", help="re-print the tables from earlier outputs"
+    )
     parser.add_argument("--precision", default="float64", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -401,6 +425,9 @@ def main() -> None:
         return
     if args.pipeline_worker:
         pipeline_worker(args)
+        return
+    if args.pipeline_report:
+        report_from_output(args.pipeline_report, args.repeats)
         return
     import jax
 

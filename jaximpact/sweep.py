@@ -6,9 +6,15 @@ cartesian grid of impact inputs and scene parameters, ``chunk_size`` impacts at 
 * **One compilation.** Every chunk has the same size (the last one is padded by repeating its
   final row; padded rows are dropped on output) and the model terms and solver are chosen once
   for the whole sweep, from all its values, exactly as :func:`jaximpact.simulate` would choose
-  them for the whole batch. A sweep therefore gives the same numbers as ``simulate`` on the same
-  impacts, up to rounding (which XLA's vectorization may make depend on the batch size, and
-  which an adaptive step decision can amplify to the solver tolerance in rare rows).
+  them for the whole batch. Inside, a chunk is solved as ``simulate`` solves a batch (the same
+  lanes per device at a time), and every operation is per impact, so a sweep gives
+  ``simulate``'s bits on the same impacts (tested).
+* **Pipelined.** Chunk ``k+1`` is dispatched (JAX runs it asynchronously) before chunk ``k`` is
+  awaited; chunk ``k``'s status codes and numeric results then come back in one transfer, are
+  converted to Arrow column-wise, and a writer thread writes the part file and the manifest
+  while the devices compute. So the devices always have work queued, and the host's work
+  costs the sweep's rate only the CPU time it takes from the computation (BENCHMARKS.md,
+  "Sweep pipeline (issue 12)").
 * **Streamed output.** The output path is a directory (a Parquet dataset)::
 
       RESULTS.parquet/
@@ -49,9 +55,10 @@ cartesian grid of impact inputs and scene parameters, ``chunk_size`` impacts at 
   ``p`` of ``P`` takes the chunks ``i`` with ``i % P == p`` and writes its own part files and
   its own manifest (``_manifest-<p>.json``), so processes never write the same file; readers
   merge the manifests.
-* **Bounded memory.** Results are never accumulated: at most two chunks (the one computing, the
-  one being written) are held. Inputs from a file are held as float64 columns (8 bytes per value;
-  results take 16 columns); a grid is generated chunk by chunk.
+* **Bounded memory.** Results are never accumulated: at most three chunks (the one computing,
+  the one being converted, the one being written) are held. Inputs from a file are held as
+  float64 columns (8 bytes per value; results take 16 columns); a grid is generated chunk by
+  chunk.
 
 Grid syntax (one ``--grid`` per axis, cartesian product, the last axis varying fastest)::
 
@@ -747,9 +754,7 @@ def _runner(terms, cfg, devices):
             size = speed.shape[0]
             if size == 1:  # as simulate: a batch of one compiles to other arithmetic
                 inputs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]), inputs)
-            result = _simulate_flat(
-                terms, cfg, *inputs, chunk=chunk, shards=shards if size > 1 else 1, loop=_LOOP
-            )
+            result = _simulate_flat(terms, cfg, *inputs, chunk=chunk, shards=shards, loop=_LOOP)
             values = jnp.stack([getattr(result, k)[:size] for k in OUTPUT_FIELDS])
             return result.status[:size], values
 
