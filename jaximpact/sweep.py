@@ -9,7 +9,8 @@ cartesian grid of impact inputs and scene parameters, ``chunk_size`` impacts at 
   them for the whole batch. Inside, a chunk is solved as ``simulate`` solves a batch (the same
   lanes per device at a time), and every operation is per impact, so a sweep gives
   ``simulate``'s bits on the same impacts (tested).
-* **Pipelined.** Chunk ``k+1`` is dispatched (JAX runs it asynchronously) before chunk ``k`` is
+* **Pipelined.** Chunk ``k+1`` is dispatched (from a thread of its own, since JAX's call of a
+  program sharded over several CPU devices returns only when it is done) before chunk ``k`` is
   awaited; chunk ``k``'s status codes and numeric results then come back in one transfer, are
   converted to Arrow column-wise, and a writer thread writes the part file and the manifest
   while the devices compute. So the devices always have work queued, and the host's work
@@ -85,6 +86,7 @@ import secrets
 import signal
 import time
 from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -796,6 +798,17 @@ def _chunk_inputs(source, base: dict, chunk: int, chunk_size: int, dtype):
     return rows, valid, [prm] + [np.asarray(padded[k], dtype) for k in IMPACT_COLUMNS]
 
 
+def _dispatch(fn, sharding, args):
+    """Put a chunk's inputs on the devices and run its program (asynchronously where JAX can);
+    the copy of its results to the host starts as soon as they are computed (on a GPU)."""
+    import jax
+
+    result = fn(*jax.device_put(args, sharding))
+    for array in result:
+        array.copy_to_host_async()
+    return result
+
+
 def _fetch(result, valid: int) -> tuple[np.ndarray, np.ndarray]:
     """Wait for a chunk's program and copy its status codes and result columns to the host."""
     import jax
@@ -1073,12 +1086,9 @@ def run_sweep(
     kill_after = None if kill_after is None else int(kill_after)
 
     def launch(chunk: int):
-        """Build chunk ``chunk``'s inputs and dispatch it (JAX runs it asynchronously)."""
+        """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
         rows, valid, args = _chunk_inputs(source, base, chunk, chunk_size, dtype)
-        result = fn(*jax.device_put(args, sharding))
-        for array in result:
-            array.copy_to_host_async()  # on a GPU the copy starts as soon as the chunk is done
-        return chunk, valid, rows, result
+        return chunk, valid, rows, dispatcher.submit(_dispatch, fn, sharding, args)
 
     def write(chunk: int, valid: int, table, counts: dict) -> None:
         """In the writer thread: the part file, then the manifest that lists it."""
@@ -1108,7 +1118,7 @@ def run_sweep(
 
     def hand_over(chunk: int, valid: int, rows: dict, result) -> None:
         """Wait for the chunk, convert it and give it to the writer."""
-        status, values = _fetch(result, valid)
+        status, values = _fetch(result.result(), valid)
         table = _chunk_table(rows, source.columns, status, values, digest, result_columns)
         writer.submit(chunk, valid, table, _failure_counts(status))
 
@@ -1128,6 +1138,10 @@ def run_sweep(
     failed = impacts_run = 0
     pending = None
     writer = _Writer(write)
+    # JAX runs a program on one CPU device asynchronously, but the call of a program sharded
+    # over several CPU devices returns only when the chunk is done (measured): calls from a
+    # thread of their own keep this thread free to fetch and convert the chunk before.
+    dispatcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sweep-dispatch")
     try:
         # Dispatch chunk k+1 before waiting for chunk k: the devices always have the next chunk
         # while the host fetches, converts and (in the writer thread) writes the last one.
@@ -1140,6 +1154,7 @@ def run_sweep(
             hand_over(*pending)
         writer.finish()
     finally:
+        dispatcher.shutdown(wait=True, cancel_futures=True)
         writer.close()
         bar.close()
     final = _load_manifests(directory)

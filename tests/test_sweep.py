@@ -145,8 +145,6 @@ def test_chunks_solved_as_simulate_solves_them_compile_once(tmp_path, monkeypatc
     padded), and a second sweep of other values of the same model compiles nothing at all."""
     import logging
 
-    import jax
-
     import jaximpact._simulate as simulate_module
 
     monkeypatch.setattr(simulate_module, "CHUNK_ONE_DEVICE", 16)
@@ -156,7 +154,9 @@ def test_chunks_solved_as_simulate_solves_them_compile_once(tmp_path, monkeypatc
 
     def sweep(speeds, out):
         source = GridSource(parse_grid([f"speed={speeds}", "f0=0"]), defaults)
-        with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+        # JAX logs each compilation at DEBUG (WARNING under jax.log_compiles, whose setting
+        # is per thread: the sweep calls its program from a thread of its own).
+        with caplog.at_level(logging.DEBUG, logger="jax._src.interpreters.pxla"):
             caplog.clear()
             run_sweep(source, out, chunk_size=CHUNK, progress=False)
             compiled = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
