@@ -12,6 +12,15 @@ Run: ``python benchmarks/sweep_benchmark.py [--n 1000000] [--scaling-n 65536] [-
   then times ``run_sweep`` on ``--scaling-n`` impacts ``--repeats`` times (median), so the rate
   is the steady state without compilation. Forced host devices share the machine's cores, so
   little gain is expected beyond the core count.
+* ``--pipeline`` (issue 12): the sweep's marginal rate against ``simulate``'s on the same
+  impacts, in one worker process per precision and device count: ``run_sweep`` on ``N`` and on
+  ``2N`` impacts (``N`` = ``--pipeline-chunks`` chunks, so compilation and the first chunk's
+  latency cancel in the difference) and ``simulate`` on the same ``N`` and ``2N`` impacts in
+  one call each (its own chunking inside; results left on the device), interleaved, medians of
+  ``--repeats``; marginal rate = ``N / (t(2N) - t(N))``, the ratio taken within each repeat.
+  Then one more sweep of ``2N`` with every phase of the sweep timed (exclusive times, by
+  wrapping the sweep module's functions), and a bitwise comparison of its results with
+  ``simulate``'s.
 """
 
 import argparse
@@ -127,6 +136,266 @@ def scaling(work: Path, n: int, chunk: int, repeats: int) -> list[dict]:
     return rows
 
 
+# ---------------------------------------------------------------------------------------------
+# --pipeline (issue 12): the sweep's marginal rate against simulate's, and where its time goes
+
+# Functions of jaximpact.sweep timed by the phase profile (those present in the version run).
+PHASES = {
+    "_model_config": "setup: model terms, solver choice (stiffness scan of all impacts)",
+    "_chunk_inputs": "inputs: rows, padding, parameters (host)",
+    "_params": "inputs: parameters (host)",
+    "dispatch": "dispatch the chunk (device_put, call; asynchronous)",
+    "_fetch": "wait for the chunk, copy its results to the host",
+    "_chunk_table": "convert the results to an Arrow table",
+    "_atomic_write_table": "Parquet: encode the part file",
+    "atomic_write_bytes": "part file: write, fsync, rename",
+    "atomic_write_text": "manifest: write, fsync, rename",
+    "_Writer.submit": "wait for the writer thread (the chunk before)",
+    "_Writer.finish": "wait for the writer thread (the last chunk)",
+}
+
+
+class PhaseTimer:
+    """Exclusive wall time per phase and thread: a wrapped call's time less its callees'."""
+
+    def __init__(self):
+        import threading
+
+        self.local = threading.local()
+        self.totals: dict[tuple[str, str], list] = {}
+
+    def wrap(self, name, fn):
+        import functools
+        import threading
+
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            stack = self.local.__dict__.setdefault("stack", [])
+            stack.append(0.0)  # time spent in wrapped callees
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                elapsed = time.perf_counter() - t
+                inner = stack.pop()
+                if stack:
+                    stack[-1] += elapsed
+                key = (threading.current_thread().name, name)
+                total = self.totals.setdefault(key, [0.0, 0])
+                total[0] += elapsed - inner
+                total[1] += 1
+
+        return timed
+
+    def install(self, module):
+        """Wrap ``module``'s functions named in PHASES, and the runner's compiled function."""
+        for name in PHASES:
+            owner, _, attribute = name.rpartition(".")
+            owner = getattr(module, owner, None) if owner else module
+            if callable(getattr(owner, attribute, None)) and name != "dispatch":
+                setattr(owner, attribute, self.wrap(name, getattr(owner, attribute)))
+        runner = module._runner
+
+        def wrapped_runner(*args, **kwargs):
+            fn, *rest = runner(*args, **kwargs)
+            return (self.wrap("dispatch", fn), *rest)
+
+        module._runner = wrapped_runner
+
+
+def split_impacts(work: Path, n: int, seed: int) -> tuple[Path, Path]:
+    """Files of the first ``n`` and all ``2n`` impacts of one random set."""
+    import pyarrow.parquet as pq
+
+    both = work / f"pipeline-{2 * n}.parquet"
+    make_impacts(both, 2 * n, seed)
+    half = work / f"pipeline-{n}.parquet"
+    pq.write_table(pq.read_table(both).slice(0, n), half)
+    return half, both
+
+
+def pipeline_worker(args) -> None:
+    """Inside one process (precision and forced device count set): see the module docstring."""
+    import jax
+
+    jax.config.update("jax_enable_x64", args.precision == "float64")
+    import jaximpact as ji
+    from jaximpact import sweep
+    from jaximpact.tables import RESULT_COLUMNS
+
+    work = Path(args.workdir)
+    chunk, n = args.chunk_size, args.chunk_size * args.pipeline_chunks
+    warm_file = work / "pipeline-warm.parquet"
+    make_impacts(warm_file, chunk, seed=5)
+    half, both = split_impacts(work, n, seed=4)
+    sources = {"n": sweep.read_impacts_file(half), "2n": sweep.read_impacts_file(both)}
+    scene = ji.load_scene()
+
+    def run_sweep(source, tag):
+        out = work / f"pipeline-out-{tag}"
+        shutil.rmtree(out, ignore_errors=True)
+        t, c = time.perf_counter(), time.process_time()
+        sweep.run_sweep(source, out, chunk_size=chunk, progress=False)
+        return time.perf_counter() - t, time.process_time() - c
+
+    def run_simulate(source):
+        table = source.table
+        t, c = time.perf_counter(), time.process_time()
+        result = ji.simulate(scene, table.speed, table.angle_deg, table.omega0)
+        jax.block_until_ready(result)
+        return time.perf_counter() - t, time.process_time() - c
+
+    t = time.perf_counter()
+    run_sweep(sweep.read_impacts_file(warm_file), "warm")  # compiles the sweep's program
+    compile_sweep = time.perf_counter() - t
+    t = time.perf_counter()
+    for source in sources.values():
+        run_simulate(source)  # compiles simulate's program for each batch size
+    compile_simulate = time.perf_counter() - t
+
+    runs = {
+        "sweep n": lambda: run_sweep(sources["n"], "n"),
+        "sweep 2n": lambda: run_sweep(sources["2n"], "2n"),
+        "simulate n": lambda: run_simulate(sources["n"]),
+        "simulate 2n": lambda: run_simulate(sources["2n"]),
+    }
+    names = list(runs)
+    wall: dict[str, list] = {k: [] for k in names}
+    cpu: dict[str, list] = {k: [] for k in names}
+    for repeat in range(args.repeats):
+        # Rotate the order so that a slow spell of the shared machine hits each kind alike.
+        for name in names[repeat % 2 * 2 :] + names[: repeat % 2 * 2]:
+            w, c = runs[name]()
+            wall[name].append(w)
+            cpu[name].append(c)
+
+    timer = PhaseTimer()
+    timer.install(sweep)
+    profiled = run_sweep(sources["2n"], "profile")[0]
+    got = sweep.read_sweep_columns(work / "pipeline-out-profile")
+    table = sources["2n"].table
+    want = ji.simulate(scene, table.speed, table.angle_deg, table.omega0).columns()
+    bitwise = all(
+        np.array_equal(np.asarray(got[k]), np.asarray(want[k]).astype(got[k].dtype), equal_nan=True)
+        if got[k].dtype.kind == "f"
+        else np.array_equal(got[k], np.asarray(want[k], str))
+        for k in RESULT_COLUMNS
+    )
+    print(
+        json.dumps(
+            {
+                "precision": args.precision,
+                "devices": len(jax.local_devices()),
+                "chunk": chunk,
+                "n": n,
+                "wall": wall,
+                "cpu": cpu,
+                "compile_sweep_s": compile_sweep,
+                "compile_simulate_s": compile_simulate,
+                "profile_wall_s": profiled,
+                "profile": [[t, k, v[0], v[1]] for (t, k), v in sorted(timer.totals.items())],
+                "bitwise": bool(bitwise),
+            }
+        )
+    )
+
+
+def pipeline(work: Path, chunk: int, chunks: int, repeats: int, configs) -> list[dict]:
+    rows = []
+    for precision, devices in configs:
+        env = dict(os.environ, JAX_PLATFORMS="cpu")
+        env["XLA_FLAGS"] = (
+            env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
+        ).strip()
+        cmd = [sys.executable, __file__, "--pipeline-worker", "--workdir", str(work)]
+        cmd += ["--precision", precision, "--chunk-size", str(chunk)]
+        cmd += ["--pipeline-chunks", str(chunks), "--repeats", str(repeats)]
+        run = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        if run.returncode:
+            raise SystemExit(f"pipeline worker failed:\n{run.stderr[-3000:]}")
+        rows.append(json.loads(run.stdout.strip().splitlines()[-1]))
+        print(f"<!-- {json.dumps(rows[-1])} -->", flush=True)
+    return rows
+
+
+def marginal(row: dict, kind: str, clock: str = "wall") -> tuple[float, float, float]:
+    """Median times (``clock``: wall or CPU seconds) of ``N`` and ``2N`` impacts and the
+    marginal rate ``N / (t(2N) - t(N))``."""
+    t1 = float(np.median(row[clock][f"{kind} n"]))
+    t2 = float(np.median(row[clock][f"{kind} 2n"]))
+    return t1, t2, row["n"] / (t2 - t1)
+
+
+def per_repeat(row: dict, clock: str) -> list[float]:
+    """The ratio of marginal rates (sweep / simulate) within each repeat."""
+    t = row[clock]
+    return [
+        (b2 - b1) / (a2 - a1)
+        for a1, a2, b1, b2 in zip(
+            t["sweep n"], t["sweep 2n"], t["simulate n"], t["simulate 2n"], strict=True
+        )
+    ]
+
+
+def report_pipeline(rows: list[dict], repeats: int) -> None:
+    print(
+        "| precision | devices | clock | sweep N / 2N (s) | sweep marginal (impacts/s) | "
+        "simulate N / 2N (s) | simulate marginal (impacts/s) | ratio | ratio per repeat | "
+        "bitwise |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for row in rows:
+        for clock in ("wall", "cpu"):
+            s1, s2, sweep_rate = marginal(row, "sweep", clock)
+            m1, m2, sim_rate = marginal(row, "simulate", clock)
+            print(
+                f"| {row['precision']} | {row['devices']} | {clock} | {s1:.2f} / {s2:.2f} | "
+                f"{sweep_rate:,.0f} | {m1:.2f} / {m2:.2f} | {sim_rate:,.0f} | "
+                f"**{sweep_rate / sim_rate:.2f}** | "
+                f"{', '.join(f'{r:.2f}' for r in per_repeat(row, clock))} | "
+                f"{'yes' if row['bitwise'] else 'no'} |"
+            )
+    print(
+        f"\nN = {rows[0]['n']:,} impacts ({rows[0]['n'] // rows[0]['chunk']} chunks of "
+        f"{rows[0]['chunk']}); medians of {repeats} interleaved repeats; *wall*: wall-clock "
+        "seconds, *cpu*: CPU-seconds of the process (all threads; rates per CPU-second); "
+        "ratio = sweep's marginal rate / simulate's from the median times; per repeat: the "
+        "same within each repeat. *bitwise*: every result column of the sweep equal to "
+        "simulate's on the 2N impacts.\n"
+    )
+    print("Where a sweep of 2N spends its time (exclusive wall time per phase, one run):\n")
+    print("| precision | devices | thread | phase | ms per chunk | share of the sweep |")
+    print("|---|---|---|---|---|---|")
+    for row in rows:
+        n_chunks = 2 * row["n"] // row["chunk"]
+        accounted = 0.0
+        order = list(PHASES)  # main thread first, then the writer's; phases in PHASES order
+        phases = sorted(row["profile"], key=lambda r: (r[0] != "MainThread", order.index(r[1])))
+        for thread, name, seconds, _calls in phases:
+            if thread == "MainThread":
+                accounted += seconds
+            print(
+                f"| {row['precision']} | {row['devices']} | {thread} | {PHASES[name]} | "
+                f"{1e3 * seconds / n_chunks:.1f} | {seconds / row['profile_wall_s']:.1%} |"
+            )
+        rest = row["profile_wall_s"] - accounted
+        print(
+            f"| {row['precision']} | {row['devices']} | MainThread | the rest (waiting for "
+            f"results where not timed above, Python, manifests read) | "
+            f"{1e3 * rest / n_chunks:.1f} | {rest / row['profile_wall_s']:.1%} |"
+        )
+
+
+def report_from_output(path: str, repeats: int) -> None:
+    """Print the tables again from the JSON lines (``<!-- ... -->``) of earlier runs."""
+    rows = []
+    for file in path.split(","):
+        for line in Path(file).read_text().splitlines():
+            if line.startswith("<!-- "):
+                rows.append(json.loads(line[5:-4]))
+    report_pipeline(rows, repeats)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--n", type=int, default=1_000_000)
@@ -136,14 +405,48 @@ def main() -> None:
     parser.add_argument("--skip-big", action="store_true")
     parser.add_argument("--workdir", help="keep files here (default: a temporary directory)")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--pipeline", action="store_true", help="only the sweep-against-simulate comparison"
+    )
+    parser.add_argument("--pipeline-chunks", type=int, default=4, help="N in chunks")
+    parser.add_argument(
+        "--pipeline-configs",
+        default="float64:1,float64:2,float32:1,float32:2",
+        help="precision:devices, comma-separated",
+    )
+    parser.add_argument("--pipeline-worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--pipeline-report", metavar="FILES", help="re-print the tables from earlier outputs"
+    )
+    parser.add_argument("--precision", default="float64", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         worker(args)
+        return
+    if args.pipeline_worker:
+        pipeline_worker(args)
+        return
+    if args.pipeline_report:
+        report_from_output(args.pipeline_report, args.repeats)
         return
     import jax
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="sweep-bench-"))
     work.mkdir(parents=True, exist_ok=True)
+    if args.pipeline:
+        configs = [
+            (c.split(":")[0], int(c.split(":")[1])) for c in args.pipeline_configs.split(",")
+        ]
+        print("## Sweep pipeline (issue 12)\n")
+        print(
+            f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, jax {jax.__version__}; "
+            "embedded Table 1 scene, oblique spinning impacts (as below), default settings.\n"
+        )
+        rows = pipeline(work, args.chunk_size, args.pipeline_chunks, args.repeats, configs)
+        report_pipeline(rows, args.repeats)
+        if not args.workdir:
+            shutil.rmtree(work, ignore_errors=True)
+        return
     print("## Large sweeps (`jaximpact sweep`)\n")
     print(
         f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, jax {jax.__version__}; "

@@ -6,9 +6,16 @@ cartesian grid of impact inputs and scene parameters, ``chunk_size`` impacts at 
 * **One compilation.** Every chunk has the same size (the last one is padded by repeating its
   final row; padded rows are dropped on output) and the model terms and solver are chosen once
   for the whole sweep, from all its values, exactly as :func:`jaximpact.simulate` would choose
-  them for the whole batch. A sweep therefore gives the same numbers as ``simulate`` on the same
-  impacts, up to rounding (which XLA's vectorization may make depend on the batch size, and
-  which an adaptive step decision can amplify to the solver tolerance in rare rows).
+  them for the whole batch. Inside, a chunk is solved as ``simulate`` solves a batch (the same
+  lanes per device at a time), and every operation is per impact, so a sweep gives
+  ``simulate``'s bits on the same impacts (tested).
+* **Pipelined.** Chunk ``k+1`` is dispatched (from a thread of its own, since JAX's call of a
+  program sharded over several CPU devices returns only when it is done) before chunk ``k`` is
+  awaited; chunk ``k``'s status codes and numeric results then come back in one transfer, are
+  converted to Arrow column-wise, and a writer thread writes the part file and the manifest
+  while the devices compute. So the devices always have work queued, and the host's work
+  costs the sweep's rate only the CPU time it takes from the computation (BENCHMARKS.md,
+  "Sweep pipeline (issue 12)").
 * **Streamed output.** The output path is a directory (a Parquet dataset)::
 
       RESULTS.parquet/
@@ -49,9 +56,10 @@ cartesian grid of impact inputs and scene parameters, ``chunk_size`` impacts at 
   ``p`` of ``P`` takes the chunks ``i`` with ``i % P == p`` and writes its own part files and
   its own manifest (``_manifest-<p>.json``), so processes never write the same file; readers
   merge the manifests.
-* **Bounded memory.** Results are never accumulated: at most two chunks (the one computing, the
-  one being written) are held. Inputs from a file are held as float64 columns (8 bytes per value;
-  results take 16 columns); a grid is generated chunk by chunk.
+* **Bounded memory.** Results are never accumulated: at most three chunks (the one computing,
+  the one being converted, the one being written) are held. Inputs from a file are held as
+  float64 columns (8 bytes per value; results take 16 columns); a grid is generated chunk by
+  chunk.
 
 Grid syntax (one ``--grid`` per axis, cartesian product, the last axis varying fastest)::
 
@@ -78,6 +86,7 @@ import secrets
 import signal
 import time
 from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -701,35 +710,60 @@ class SweepSummary:
 
 
 _RUNNERS: dict = {}
+_STIFFNESS: list = []  # the jitted stiffness estimate, made on first use (jax imports lazily)
+
+# How the sweep's program solves a chunk: the batch path of ``jaximpact.simulate`` (its
+# ``_simulate``), so that a sweep gives simulate's bits. ``loop``: simulate's default.
+_LOOP = "diffrax"
 
 
 def _runner(terms, cfg, devices):
-    """The jitted, sharded batch function for this model/solver and these devices (cached).
+    """The jitted, sharded program that solves one chunk (cached per model, solver, devices).
 
-    A ``jit`` of the simulator's batch function with its inputs and outputs sharded along the
-    batch over a 1-D mesh of the local devices: XLA's SPMD partitioner gives each device its
-    slice of the chunk. The compiled program exchanges no data between devices, only one
-    boolean per solver step (the batched while-loop's "any impact still running", an
-    all-reduce), so the devices step in lockstep as a single-device ``vmap`` does for its whole
-    batch. (``jax.shard_map``, which would let each device stop on its own, does not work here:
-    under it lineax, used by the event root finder, rejects the manual-mesh shardings of its
-    own traced values - "pytree does not match out_structure" - with jax 0.10.)
+    A ``jit`` of the simulator's batch function with its inputs sharded along the batch over a
+    1-D mesh of the local devices: XLA's SPMD partitioner gives each device its slice of the
+    chunk. The compiled program exchanges no data between devices, only one boolean per solver
+    step (the batched while-loop's "any impact still running", an all-reduce), so the devices
+    step in lockstep as a single-device ``vmap`` does for its whole batch. (``jax.shard_map``,
+    which would let each device stop on its own, does not work here: under it lineax, used by
+    the event root finder, rejects the manual-mesh shardings of its own traced values -
+    "pytree does not match out_structure" - with jax 0.10.)
+
+    Inside, the chunk is solved as ``simulate`` solves a batch of that size on these devices:
+    the same lanes per device at a time (``chunk``, ``shards``; ``lax.map`` over sub-chunks on
+    a CPU). Returns ``(fn, sharding)``: ``fn(params, speed, angle_deg, omega0)`` gives the
+    status codes and the numeric result columns stacked as one ``(len(OUTPUT_FIELDS), size)``
+    array, so that fetching a chunk is one transfer of what its part file holds (not the step
+    counts).
     """
     import jax
+    import jax.numpy as jnp
     from jax.sharding import Mesh, NamedSharding
     from jax.sharding import PartitionSpec as P
 
-    from ._simulate import _simulate_flat
+    from ._results import OUTPUT_FIELDS
+    from ._simulate import _default_chunk, _simulate_flat
 
-    key = (terms, cfg, tuple(d.id for d in devices))
+    shards = len(devices)
+    chunk = _default_chunk(shards)
+    key = (terms, cfg, tuple(d.id for d in devices), chunk, _LOOP)
     if key not in _RUNNERS:
-        sharding = NamedSharding(Mesh(np.array(devices), ("batch",)), P("batch"))
+        mesh = Mesh(np.array(devices), ("batch",))
+        sharding = NamedSharding(mesh, P("batch"))
+
+        def sweep_chunk(params, speed, angle_deg, omega0):
+            inputs = (params, speed, angle_deg, omega0)
+            size = speed.shape[0]
+            if size == 1:  # as simulate: a batch of one compiles to other arithmetic
+                inputs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]), inputs)
+            result = _simulate_flat(terms, cfg, *inputs, chunk=chunk, shards=shards, loop=_LOOP)
+            values = jnp.stack([getattr(result, k)[:size] for k in OUTPUT_FIELDS])
+            return result.status[:size], values
+
         fn = jax.jit(
-            lambda params, speed, angle_deg, omega0: _simulate_flat(
-                terms, cfg, params, speed, angle_deg, omega0
-            ),
+            sweep_chunk,
             in_shardings=sharding,
-            out_shardings=sharding,
+            out_shardings=(sharding, NamedSharding(mesh, P(None, "batch"))),
         )
         _RUNNERS[key] = (fn, sharding)
     return _RUNNERS[key]
@@ -740,13 +774,60 @@ def _params(base: dict, rows: dict, size: int, dtype) -> dict:
     return {k: np.asarray(rows[k] if k in rows else np.full(size, base[k]), dtype) for k in base}
 
 
+def _padded_rows(source, start: int, chunk_size: int) -> tuple[dict, int]:
+    """Rows ``start:start+chunk_size`` of ``source`` and how many are real.
+
+    A short last chunk is padded by repeating its last row: a valid impact, so padding cannot
+    fail or slow down the solver, and the shape (hence the compilation) stays the same.
+    """
+    stop = min(start + chunk_size, source.n)
+    rows = source.rows(start, stop)
+    valid = stop - start
+    if valid == chunk_size:
+        return rows, valid
+    pad = np.concatenate([np.arange(valid), np.full(chunk_size - valid, valid - 1)])
+    return {k: v[pad] for k, v in rows.items()}, valid
+
+
+def _chunk_inputs(source, base: dict, chunk: int, chunk_size: int, dtype):
+    """Chunk ``chunk``'s rows (unpadded, for its part file), its number of real rows, and the
+    padded program inputs ``[params, speed, angle_deg, omega0]`` as host arrays."""
+    padded, valid = _padded_rows(source, chunk * chunk_size, chunk_size)
+    rows = {k: v[:valid] for k, v in padded.items()}
+    prm = _params(base, padded, chunk_size, dtype)
+    return rows, valid, [prm] + [np.asarray(padded[k], dtype) for k in IMPACT_COLUMNS]
+
+
+def _dispatch(fn, sharding, args):
+    """Put a chunk's inputs on the devices and run its program (asynchronously where JAX can);
+    the copy of its results to the host starts as soon as they are computed (on a GPU)."""
+    import jax
+
+    result = fn(*jax.device_put(args, sharding))
+    for array in result:
+        array.copy_to_host_async()
+    return result
+
+
+def _fetch(result, valid: int) -> tuple[np.ndarray, np.ndarray]:
+    """Wait for a chunk's program and copy its status codes and result columns to the host."""
+    import jax
+
+    status, values = jax.device_get(result)
+    return np.asarray(status[:valid]), np.asarray(values[:, :valid])
+
+
 def _model_config(scene, source, chunk_size: int, dtype):
     """Model terms and solver settings for the whole sweep (static: one compilation).
 
     The same choice :func:`jaximpact.simulate` makes for one batch holding every impact: the
     terms from all values each input takes; with ``method = "auto"``, Kvaerno5 if the stiffness
-    estimate of any impact exceeds the limit (computed chunk by chunk to bound memory).
+    estimate of any impact exceeds the limit (computed chunk by chunk to bound memory, in one
+    compiled function of the padded chunk, read back once at the end).
     """
+    import jax
+    import jax.numpy as jnp
+
     from ._simulate import (
         integration_settings,
         required_terms,
@@ -760,14 +841,15 @@ def _model_config(scene, source, chunk_size: int, dtype):
     terms = required_terms(scene, params, sets["angle_deg"], sets["omega0"])
     method = scene.solver.method
     if method == "auto":
-        stiffness = 0.0
+        if not _STIFFNESS:
+            _STIFFNESS.append(jax.jit(stiffness_estimate))
+        stiffness = None
         for start in range(0, source.n, chunk_size):
-            rows = source.rows(start, min(start + chunk_size, source.n))
-            size = rows["speed"].size
-            prm = _params(base, rows, size, dtype)
-            estimate = stiffness_estimate(prm, rows["speed"].astype(dtype), rows["angle_deg"])
-            stiffness = max(stiffness, float(estimate))
-        method = "kvaerno5" if stiffness > scene.solver.stiffness_limit else "tsit5"
+            rows, _ = _padded_rows(source, start, chunk_size)  # the copies: the same maximum
+            prm = _params(base, rows, chunk_size, dtype)
+            estimate = _STIFFNESS[0](prm, rows["speed"].astype(dtype), rows["angle_deg"])
+            stiffness = estimate if stiffness is None else jnp.maximum(stiffness, estimate)
+        method = "kvaerno5" if float(stiffness) > scene.solver.stiffness_limit else "tsit5"
     one = {k: np.ones(1) for k in base}
     cfg = integration_settings(scene, one, np.ones(1), np.zeros(1), dtype, method)
     return base, terms, cfg
@@ -797,22 +879,99 @@ def _settings(scene_path, source, chunk_size: int, dtype) -> tuple[dict, str]:
     return settings, digest
 
 
-def _chunk_table(inputs: dict, columns, results: dict, settings_hash: str, result_columns):
-    """One chunk's part file: inputs, then ``result_columns`` (``failure_reason`` null where
-    empty, i.e. unless failed), units as field metadata, the settings hash as file metadata."""
+def _status_texts():
+    """Arrow string arrays indexed by status code: the ``status`` column's text
+    (rebound/captured/failed) and ``failure_reason``'s (null unless failed)."""
     import pyarrow as pa
 
+    from ._results import Status
+
+    codes = range(max(Status.NAMES) + 1)
+    status = pa.array([Status.csv_name(c) for c in codes], pa.string())
+    reason = [Status.NAMES[c] if c >= Status.MAX_STEPS else None for c in codes]
+    return status, pa.array(reason, pa.string())
+
+
+def _failure_counts(status: np.ndarray) -> dict[str, int]:
+    """``{failure_reason: count}`` of a chunk's status codes (failed impacts only)."""
+    from ._results import Status
+
+    counts = np.bincount(status, minlength=max(Status.NAMES) + 1)
+    return {Status.NAMES[c]: int(n) for c, n in enumerate(counts) if c >= Status.MAX_STEPS and n}
+
+
+def _chunk_table(inputs: dict, columns, status, values, settings_hash: str, result_columns):
+    """One chunk's part file: inputs, then ``result_columns`` (``failure_reason`` null unless
+    failed), units as field metadata, the settings hash as file metadata. ``status``: codes;
+    ``values``: the numeric result columns in ``OUTPUT_FIELDS`` order (``_fetch``)."""
+    import pyarrow as pa
+
+    from ._results import OUTPUT_FIELDS
+
     arrays = [pa.array(np.asarray(inputs[k], np.float64)) for k in columns]
+    numbers = dict(zip(OUTPUT_FIELDS, values, strict=True))
+    codes = pa.array(np.asarray(status, np.int32))
+    status_text, reason_text = _status_texts()
     for name in result_columns:
-        if name == "failure_reason":
-            texts = [str(v) or None for v in np.asarray(results[name], dtype=object).tolist()]
-            arrays.append(pa.array(texts, pa.string()))
-        elif name in TEXT_RESULT_COLUMNS:
-            arrays.append(pa.array(np.asarray(results[name]).astype(str).tolist(), pa.string()))
+        if name == "status":
+            arrays.append(status_text.take(codes))
+        elif name == "failure_reason":
+            arrays.append(reason_text.take(codes))
         else:
-            arrays.append(pa.array(np.asarray(results[name], np.float64)))
+            arrays.append(pa.array(np.asarray(numbers[name], np.float64)))
     table = pa.Table.from_arrays(arrays, schema=_schema(columns, result_columns))
     return table.replace_schema_metadata({"jaximpact.settings_hash": settings_hash})
+
+
+class _Writer:
+    """Writes finished chunks in a thread of its own, one at a time and in order.
+
+    ``write(*item)`` runs in the thread (part file, then manifest). ``submit`` first waits for
+    the previous item, so at most one chunk is being written while the next is fetched and
+    converted; an error in the thread is raised by the next ``submit`` or by ``finish``.
+    """
+
+    def __init__(self, write):
+        import queue
+        import threading
+
+        self._write = write
+        self._queue: queue.Queue = queue.Queue()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="sweep-writer", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            try:
+                if item is None:
+                    return
+                if self._error is None:
+                    self._write(*item)
+            except BaseException as err:  # handed to the main thread
+                self._error = err
+            finally:
+                self._queue.task_done()
+
+    def _check(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def submit(self, *item) -> None:
+        self._queue.join()
+        self._check()
+        self._queue.put(item)
+
+    def finish(self) -> None:
+        """Wait until everything submitted is written; raise the thread's error, if any."""
+        self._queue.join()
+        self._check()
+
+    def close(self) -> None:
+        """Stop the thread after what it holds (also after an error in the main thread)."""
+        self._queue.put(None)
+        self._thread.join()
 
 
 def run_sweep(
@@ -927,30 +1086,21 @@ def run_sweep(
     kill_after = None if kill_after is None else int(kill_after)
 
     def launch(chunk: int):
-        """Build chunk ``chunk``'s padded inputs and dispatch it (JAX runs it asynchronously)."""
-        start = chunk * chunk_size
-        stop = min(start + chunk_size, source.n)
-        rows = source.rows(start, stop)
-        valid = stop - start
-        # Pad by repeating the last row: a valid impact, so padding cannot fail or slow down
-        # the solver, and the shape (hence the compilation) stays the same.
-        pad = np.concatenate([np.arange(valid), np.full(chunk_size - valid, valid - 1)])
-        padded = {k: v[pad] for k, v in rows.items()}
-        prm = _params(base, padded, chunk_size, dtype)
-        args = [prm] + [np.asarray(padded[k], dtype) for k in IMPACT_COLUMNS]
-        args = jax.device_put(args, sharding)
-        return chunk, valid, rows, fn(*args)
+        """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
+        rows, valid, args = _chunk_inputs(source, base, chunk, chunk_size, dtype)
+        return chunk, valid, rows, dispatcher.submit(_dispatch, fn, sharding, args)
 
-    def commit(chunk: int, valid: int, rows: dict, result) -> int:
-        columns = jax.tree_util.tree_map(lambda x: np.asarray(x)[:valid], result).columns()
-        table = _chunk_table(rows, source.columns, columns, digest, result_columns)
+    def write(chunk: int, valid: int, table, counts: dict) -> None:
+        """In the writer thread: the part file, then the manifest that lists it."""
+        nonlocal failed, impacts_run
         _atomic_write_table(directory / _part_name(chunk), table)
         if kill_after is not None and len(own_completed) - skipped_own >= kill_after:
             os.kill(os.getpid(), signal.SIGKILL)  # test hook: die before the manifest update
         own_completed.append(chunk)
         # Counted in memory (reasons are known even where the sweep's columns lack them), and
         # stored with the completed list in one atomic write.
-        _count_failures(own_failures, columns["status"].tolist(), columns["failure_reason"])
+        for reason, n in counts.items():
+            own_failures[reason] = own_failures.get(reason, 0) + n
         manifest = {
             "format": FORMAT,
             "settings_hash": digest,
@@ -962,7 +1112,15 @@ def run_sweep(
             "failures": dict(sorted(own_failures.items())),
         }
         atomic_write_text(directory / _manifest_name(index), json.dumps(manifest, indent=1) + "\n")
-        return int(np.sum(columns["status"] == "failed"))
+        failed += sum(counts.values())
+        impacts_run += valid
+        bar.update(valid)
+
+    def hand_over(chunk: int, valid: int, rows: dict, result) -> None:
+        """Wait for the chunk, convert it and give it to the writer."""
+        status, values = _fetch(result.result(), valid)
+        table = _chunk_table(rows, source.columns, status, values, digest, result_columns)
+        writer.submit(chunk, valid, table, _failure_counts(status))
 
     skipped_own = len(own_completed)
     total = sum(min(chunk_size, source.n - c * chunk_size) for c in mine)
@@ -979,20 +1137,25 @@ def run_sweep(
     )
     failed = impacts_run = 0
     pending = None
+    writer = _Writer(write)
+    # JAX runs a program on one CPU device asynchronously, but the call of a program sharded
+    # over several CPU devices returns only when the chunk is done (measured): calls from a
+    # thread of their own keep this thread free to fetch and convert the chunk before.
+    dispatcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sweep-dispatch")
     try:
-        # Dispatch chunk k+1 before writing chunk k: the devices compute while Python writes.
+        # Dispatch chunk k+1 before waiting for chunk k: the devices always have the next chunk
+        # while the host fetches, converts and (in the writer thread) writes the last one.
         for chunk in todo:
             launched = launch(chunk)
             if pending is not None:
-                failed += commit(*pending)
-                impacts_run += pending[1]
-                bar.update(pending[1])
+                hand_over(*pending)
             pending = launched
         if pending is not None:
-            failed += commit(*pending)
-            impacts_run += pending[1]
-            bar.update(pending[1])
+            hand_over(*pending)
+        writer.finish()
     finally:
+        dispatcher.shutdown(wait=True, cancel_futures=True)
+        writer.close()
         bar.close()
     final = _load_manifests(directory)
     finished = {int(c) for _, m in final.values() for c in m["completed"]}

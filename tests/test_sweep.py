@@ -108,8 +108,9 @@ def test_sweep_equals_simulate_row_for_row(impacts, reference):
     }
     assert list(got) == [*table.columns, *RESULT_COLUMNS]
     assert len(got["speed"]) == N  # padding dropped
-    # Chunks of 64 against one batch of 150: the same model and solver, per-impact arithmetic.
-    assert_same(got, expected, rtol=1e-12)
+    # Chunks of 64 against one batch of 150: the same model, solver and per-impact arithmetic,
+    # so the same bits.
+    assert_same(got, expected)
     assert sorted(p.name for p in out.iterdir()) == [
         "_manifest-00000.json",
         "part-000000.parquet",
@@ -134,7 +135,43 @@ def test_grid_sweep_equals_simulate_on_the_product(tmp_path):
     np.testing.assert_array_equal(got["f0"], f)
     np.testing.assert_array_equal(got["omega0"], np.full(75, 1e4))
     res = ji.simulate(ji.load_scene().replace(contact={"f0": f}), s, a, 1e4)
-    assert_same({k: got[k] for k in RESULT_COLUMNS}, res.columns(), rtol=1e-12)
+    assert_same({k: got[k] for k in RESULT_COLUMNS}, res.columns())
+
+
+def test_chunks_solved_as_simulate_solves_them_compile_once(tmp_path, monkeypatch, caplog):
+    """Inside its program a sweep solves a chunk in sub-chunks as ``simulate`` does (here 16
+    lanes at a time, instead of 4096, so that 64-impact chunks have several): the same bits as
+    ``simulate`` on the whole batch. Its program compiles once for three chunks (the last one
+    padded), and a second sweep of other values of the same model compiles nothing at all."""
+    import logging
+
+    import jaximpact._simulate as simulate_module
+
+    monkeypatch.setattr(simulate_module, "CHUNK_ONE_DEVICE", 16)
+    # Normal impacts without adhesion: a small program of its own (no other test compiles it).
+    defaults = {"speed": 1.0, "angle_deg": 0.0, "omega0": 0.0}
+    scene = ji.load_scene().replace(contact={"f0": 0.0})
+
+    def sweep(speeds, out):
+        source = GridSource(parse_grid([f"speed={speeds}", "f0=0"]), defaults)
+        # JAX logs each compilation at DEBUG (WARNING under jax.log_compiles, whose setting
+        # is per thread: the sweep calls its program from a thread of its own).
+        with caplog.at_level(logging.DEBUG, logger="jax._src.interpreters.pxla"):
+            caplog.clear()
+            run_sweep(source, out, chunk_size=CHUNK, progress=False)
+            compiled = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
+        return read_sweep_columns(out), compiled
+
+    got, compiled = sweep("0.3:4:150", tmp_path / "a")
+    assert len(got["speed"]) == N
+    assert sum("sweep_chunk" in m for m in compiled) == 1, compiled
+    res = ji.simulate(scene, got["speed"], 0.0, 0.0)
+    assert_same({k: got[k] for k in RESULT_COLUMNS}, res.columns())
+    assert set(got["status"]) == {"rebound"}
+
+    again, compiled = sweep("0.4:3:150", tmp_path / "b")
+    assert compiled == []
+    assert not np.array_equal(again["vn_out"], got["vn_out"])
 
 
 def test_parquet_impacts_give_the_same_results(impacts, reference, tmp_path):
