@@ -42,6 +42,8 @@ __all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
 LIKELIHOODS = ("gaussian", "student-t")
 #: A run with a larger split R-hat for any parameter is not called converged.
 MAX_RHAT = 1.01
+#: NUTS tree depth limit (at most 2^MAX_DOUBLINGS - 1 log-density evaluations per draw).
+MAX_DOUBLINGS = 8
 #: Range of the sampled noise factors (log-uniform prior).
 NOISE_FACTOR_RANGE = (1e-3, 1e3)
 
@@ -169,8 +171,11 @@ def _noise_groups(objective: Objective) -> tuple[np.ndarray, tuple[str, ...]]:
 # -- the sampler ----------------------------------------------------------------------------
 
 
-def _run_nuts(log_density, z0, *, warmup, draws, seed, target_accept, progress, counter):
-    """Window adaptation then NUTS for every chain (rows of ``z0``). Returns draws
+def _run_nuts(log_density, z0, metric, *, warmup, draws, seed, target_accept, progress, counter):
+    """Window adaptation then NUTS for every chain (rows of ``z0``), the adaptation started
+    from the inverse mass matrix ``metric`` (the least-squares covariance: the chains then
+    start with steps of the posterior's own shape instead of searching for them with
+    deep, costly trees). Returns draws
     ``(C, D, d)``, log densities ``(C, D)``, divergent ``(C, D)``, acceptance ``(C, D)``,
     step sizes ``(C,)`` and the seconds of warm-up and sampling."""
     import blackjax
@@ -182,7 +187,10 @@ def _run_nuts(log_density, z0, *, warmup, draws, seed, target_accept, progress, 
         blackjax.nuts,
         log_density,
         is_mass_matrix_diagonal=False,  # a dense mass matrix takes the C_A-f0 correlation
+        initial_inverse_mass_matrix=jnp.asarray(metric),
+        initial_step_size=0.5,
         target_acceptance_rate=target_accept,
+        max_num_doublings=MAX_DOUBLINGS,
         adaptation_info_fn=blackjax.adaptation.base.get_filter_adapt_info_fn(),
     )
 
@@ -228,7 +236,10 @@ def _run_nuts(log_density, z0, *, warmup, draws, seed, target_accept, progress, 
 
     def one(k, state, step_size, inverse_mass_matrix):
         kernel = blackjax.nuts(
-            log_density, step_size=step_size, inverse_mass_matrix=inverse_mass_matrix
+            log_density,
+            step_size=step_size,
+            inverse_mass_matrix=inverse_mass_matrix,
+            max_num_doublings=MAX_DOUBLINGS,
         )
         return kernel.step(k, state)
 
@@ -359,9 +370,15 @@ def _sample(
     s0 = np.asarray(log_noise_center) + 0.1 * jitter * rng.standard_normal((chains, k))
     if z0 is None:
         z0 = np.concatenate([u0, s0], axis=1)
+    metric = np.zeros((p + k, p + k))
+    metric[:p, :p] = cov_u + 1e-12 * np.eye(p)
+    # log of a fitted noise factor: variance about 1 / (2 n_k) for n_k observations
+    for j in range(k):
+        metric[p + j, p + j] = 0.5 / max(int(np.sum(np.asarray(groups) == j)), 1)
     z, lp, divergent, accept, step_size, t_warm, t_draw = _run_nuts(
         log_density,
         z0,
+        metric,
         warmup=warmup,
         draws=draws,
         seed=seed,
