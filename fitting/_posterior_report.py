@@ -87,6 +87,23 @@ def posterior_summary(result: PosteriorResult) -> str:
     return "\n".join(lines)
 
 
+def import_arviz():
+    """arviz, imported quietly (it warns about its own coming refactor on import).
+
+    Raises:
+        FitError: arviz is not installed (``pip install "jaximpact[posterior]"``).
+    """
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            import arviz
+    except ImportError:
+        raise FitError('--draws needs arviz: pip install "jaximpact[posterior]"') from None
+    return arviz
+
+
 def write_draws(path, result: PosteriorResult) -> None:
     """Write the draws as ArviZ InferenceData (netCDF), atomically.
 

@@ -206,10 +206,9 @@ def cmd_fit(args) -> int:
     if args.profile_plot and args.profile is None:
         raise FitError("--profile-plot needs --profile NAME")
     if args.draws:
-        try:
-            import arviz  # noqa: F401
-        except ImportError:
-            raise FitError('--draws needs arviz: pip install "jaximpact[posterior]"') from None
+        from ._posterior_report import import_arviz
+
+        import_arviz()
     scene = jaximpact.load_scene(scene_path)
     # Outputs are checked before the fit: a typo in -o must not cost the computation.
     for path, what in (
