@@ -99,7 +99,12 @@ def result_dict(result: FitResult) -> dict:
 
 def write_json(path, result: FitResult) -> None:
     """Write :func:`result_dict` as JSON, atomically (readers never see a partial file)."""
-    atomic_write_text(path, json.dumps(result_dict(result), indent=2) + "\n")
+    write_json_dict(path, result_dict(result))
+
+
+def write_json_dict(path, document: dict) -> None:
+    """Write a JSON-ready dict, atomically."""
+    atomic_write_text(path, json.dumps(document, indent=2) + "\n")
 
 
 _STATUS_LINE = {

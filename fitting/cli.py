@@ -81,6 +81,39 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the multi-start spread")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g = p.add_argument_group(
+        "posterior (NUTS; docs/posterior.md)",
+        "--posterior samples the Bayesian posterior after the fit, from chains started at the "
+        "least-squares optimum. Exit 3 when a split R-hat exceeds 1.01 or a transition "
+        "diverged.",
+    )
+    g.add_argument("--posterior", action="store_true", help="sample the posterior")
+    g.add_argument(
+        "--prior",
+        nargs="+",
+        default=[],
+        metavar="NAME=SPEC",
+        help="prior of a parameter: NAME=loguniform:LO:HI or NAME=normal:MU:SD (SI units); "
+        "default log-uniform over a physical range (docs/posterior.md)",
+    )
+    g.add_argument("--likelihood", choices=("gaussian", "student-t"), default="gaussian")
+    g.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom (4)")
+    g.add_argument("--chains", type=int, default=4, help="number of chains (default 4)")
+    g.add_argument("--samples", type=int, default=1000, help="draws per chain (default 1000)")
+    g.add_argument("--warmup", type=int, default=1000, help="warm-up steps per chain (1000)")
+    g.add_argument("--draws", metavar="FILE.nc", help="write the draws (ArviZ InferenceData)")
+    g.add_argument("--corner", metavar="FILE.png", help="corner plot of the draws")
+    g.add_argument(
+        "--predictive", metavar="FILE.png", help="data against the posterior predictive band"
+    )
+    g = p.add_argument_group("profile likelihood")
+    g.add_argument(
+        "--profile",
+        metavar="NAME",
+        help="profile likelihood of one fitted parameter: the others re-fitted along a grid",
+    )
+    g.add_argument("--profile-points", type=int, default=15, help="grid points (default 15)")
+    g.add_argument("--profile-plot", metavar="FILE.png", help="plot of the profile")
     p.set_defaults(func=cmd_fit)
     return p
 
@@ -133,7 +166,7 @@ def cmd_fit(args) -> int:
 
     from ._fit import fit
     from ._objective import FitError, check_names
-    from ._report import plot_fit, summary, write_json
+    from ._report import plot_fit, result_dict, summary, write_json_dict
 
     if len(args.files) > 2:
         raise FitError(f"expected [SCENE] DATA, got {len(args.files)} files")
@@ -145,11 +178,49 @@ def cmd_fit(args) -> int:
     else:
         check_readable(data_path, "data file")
     names = check_names(args.params)
+    priors = _parse_priors(args.prior, names) if args.posterior else {}
+    posterior_outputs = (
+        (args.draws, "draws file"),
+        (args.corner, "corner plot"),
+        (args.predictive, "predictive plot"),
+    )
+    if not args.posterior:
+        for option, (path, _) in zip(
+            ("--draws", "--corner", "--predictive"), posterior_outputs, strict=True
+        ):
+            if path:
+                raise FitError(f"{option} needs --posterior")
+        if args.prior:
+            raise FitError("--prior needs --posterior")
+    for label, value, least in (
+        ("--chains", args.chains, 1),
+        ("--samples", args.samples, 4),
+        ("--warmup", args.warmup, 1),
+        ("--profile-points", args.profile_points, 3),
+    ):
+        if value < least:
+            raise FitError(f"{label} must be an integer >= {least}, got {value}")
+    if not args.nu > 0:
+        raise FitError(f"--nu must be > 0, got {args.nu}")
+    if args.profile is not None and args.profile not in names:
+        raise FitError(f"--profile {args.profile}: not among the fitted --params {list(names)}")
+    if args.profile_plot and args.profile is None:
+        raise FitError("--profile-plot needs --profile NAME")
+    if args.draws:
+        from ._posterior_report import import_arviz
+
+        import_arviz()
     scene = jaximpact.load_scene(scene_path)
     # Outputs are checked before the fit: a typo in -o must not cost the computation.
-    for path, what in ((args.output, "fit JSON"), (args.plot, "plot")):
+    for path, what in (
+        (args.output, "fit JSON"),
+        (args.plot, "plot"),
+        (args.profile_plot, "profile plot"),
+        *posterior_outputs,
+    ):
         if path:
             prepare_output(path, what)
+    progress = not args.no_progress
     result = fit(
         scene,
         data_path,
@@ -164,14 +235,157 @@ def cmd_fit(args) -> int:
     )
     print(f"scene: {describe_scene_source(scene_path)}")
     print(summary(result))
-    for path, write in ((args.output, write_json), (args.plot, plot_fit)):
+    document = result_dict(result)
+    outputs = [(args.plot, lambda path: plot_fit(path, result))]
+    failed = [] if result.converged else [f"fit {result.message}"]
+    if args.profile is not None and result.converged:
+        from ._profile import plot_profile, profile, profile_summary
+
+        prof = profile(result, args.profile, points=args.profile_points, progress=progress)
+        print(profile_summary(prof))
+        document["profile"] = prof.as_dict()
+        outputs.append((args.profile_plot, lambda path: plot_profile(path, prof)))
+    if args.posterior and result.converged:
+        from ._posterior import sample_posterior
+        from ._posterior_report import (
+            add_to_result_dict,
+            plot_corner,
+            plot_predictive,
+            posterior_summary,
+            write_draws,
+        )
+
+        post = sample_posterior(
+            scene,
+            result.objective.observations,
+            names,
+            priors=priors,
+            likelihood=args.likelihood,
+            nu=args.nu,
+            chains=args.chains,
+            draws=args.samples,
+            warmup=args.warmup,
+            seed=args.seed,
+            fit_result=result,
+            progress=progress,
+        )
+        print(posterior_summary(post))
+        add_to_result_dict(document, post)
+        outputs += [
+            (args.draws, lambda path: write_draws(path, post)),
+            (args.corner, lambda path: plot_corner(path, post)),
+            (args.predictive, lambda path: plot_predictive(path, post)),
+        ]
+        if not post.converged:
+            failed.append(f"posterior {post.message}")
+    elif (args.posterior or args.profile) and not result.converged:
+        print("the least-squares fit did not converge: no posterior or profile", file=sys.stderr)
+    outputs.insert(0, (args.output, lambda path: write_json_dict(path, document)))
+    for path, write in outputs:
         if path:
             try:
-                write(path, result)
+                write(path)
             except OSError as err:
                 raise write_failed(path, err) from None
             print(f"wrote {path}")
-    if not result.converged:
-        print(f"error: fit {result.message}", file=sys.stderr)
+    if failed:
+        for reason in failed:
+            print(f"error: {reason}", file=sys.stderr)
         return EXIT_NOT_CONVERGED
+    return 0
+
+
+def _parse_priors(items, names) -> dict:
+    """``NAME=SPEC`` items -> ``{name: Prior}`` (bad input: a `FitError` naming the field)."""
+    from ._objective import FitError
+    from ._priors import parse_prior
+
+    out = {}
+    for item in items:
+        name, sep, spec = item.partition("=")
+        name = name.strip()
+        if not sep:
+            raise FitError(
+                f"--prior expects NAME=loguniform:LO:HI or NAME=normal:MU:SD, got {item!r}"
+            )
+        if name not in names:
+            raise FitError(f"--prior {name}: not among the fitted --params {list(names)}")
+        out[name] = parse_prior(name, spec)
+    return out
+
+
+_DESIGN_DESCRIPTION = """\
+Choose N impacts from candidate rows (an impacts CSV: speed, angle_deg[, omega0]) that most
+reduce the uncertainty of the named parameters: greedy D-optimal on the Fisher information
+J^T S^-1 J of the observables to be measured (J: forward-mode derivatives with respect to the
+log-parameters at the scene's values). Default noise: 1 % of each observable's natural scale
+(cor_n, cor_t: 0.01; vt_out: 1 % of the speed; omega_out: 1 % of speed/radius; rebound angle:
+1 degree); --sigma sets it per observable. Candidates the model captures, or whose outcome
+(rebound or capture) changes when a parameter moves by 10 %, are dropped (counted in the
+report). DESIGN.csv lists the chosen rows in the order chosen, with the log-det gain of each.
+
+Exit status: 0 written; 1 computation failed; 2 bad input (named in the message)."""
+
+
+def add_design_command(subparsers) -> argparse.ArgumentParser:
+    """Add the ``design`` sub-command to a ``jaximpact`` argument parser's subparsers."""
+    p = subparsers.add_parser(
+        "design",
+        help="choose the impacts to measure next (D-optimal experiment design)",
+        description=_DESIGN_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("scene", nargs="?", default=None, help="scene name or TOML (default table1)")
+    p.add_argument("--params", nargs="+", required=True, metavar="NAME")
+    p.add_argument("--candidates", required=True, metavar="CAND.csv")
+    p.add_argument("--n", type=int, required=True, help="impacts to choose")
+    p.add_argument("--observables", nargs="+", default=["cor_n"], metavar="NAME")
+    p.add_argument("--sigma", nargs="+", default=[], metavar="OBSERVABLE=SIGMA")
+    p.add_argument("-o", "--output", required=True, metavar="DESIGN.csv")
+    p.set_defaults(func=cmd_design)
+    return p
+
+
+def cmd_design(args) -> int:
+    """Run ``jaximpact design``; returns 0 (bad input raises a ``ValueError``: exit 2)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+    import jaximpact
+    from jaximpact._paths import check_readable, prepare_output, write_failed
+
+    from ._design import design, write_design
+    from ._objective import FitError, check_names
+
+    names = check_names(args.params)
+    sigma = {}
+    for item in args.sigma:
+        name, sep, text = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            sigma[name.strip()] = float(text)
+        except ValueError:
+            raise FitError(f"--sigma expects OBSERVABLE=SIGMA, got {item!r}") from None
+    if args.n < 1:
+        raise FitError(f"--n must be an integer >= 1, got {args.n}")
+    check_readable(args.candidates, "candidates file")
+    prepare_output(args.output, "design CSV")
+    scene = jaximpact.load_scene(args.scene)
+    result = design(
+        scene, args.candidates, names, args.n, observables=args.observables, sigma=sigma
+    )
+    print(result.message())
+    for k, i in enumerate(result.chosen):
+        t = result.candidates
+        print(
+            f"  {k + 1:3d}: speed {t.speed[i]:.4g} m/s, angle {t.angle_deg[i]:.4g} deg, "
+            f"omega0 {t.omega0[i]:.4g} rad/s; gain {result.gain[k]:.3g}"
+        )
+    try:
+        write_design(args.output, result)
+    except OSError as err:
+        raise write_failed(args.output, err) from None
+    print(f"wrote {args.output}")
     return 0

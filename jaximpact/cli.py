@@ -3,13 +3,15 @@
 commands:
   simulate  impacts of a scene: a table on screen, a results CSV with -o
   sweep     millions of impacts (a file or a grid) to a resumable Parquet dataset
-  fit       identify contact parameters (C_A, C_H, f0, friction, ...) from rebound data
+  fit       identify contact parameters (C_A, C_H, f0, friction, ...) from rebound data;
+            --posterior (NUTS), --profile NAME
+  design    choose the impacts to measure next (D-optimal, from candidate rows)
   show      a scene as resolved: derived quantities, solver, the terms it compiles
   scenes    the embedded scenes, by name (every SCENE argument takes a name or a path)
 
 units: SI throughout (m, s, kg, rad); angles in degrees from the surface normal.
-exit status: 0 ok; 1 the computation failed; 2 bad input (file, field, option); 3 a fit that
-did not produce a trustworthy answer.
+exit status: 0 ok; 1 the computation failed; 2 bad input (file, field, option); 3 a fit or
+posterior that did not produce a trustworthy answer.
 """
 
 import argparse

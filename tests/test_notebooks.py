@@ -17,6 +17,7 @@ def test_notebooks_present():
         "02_identify_parameters.ipynb",
         "03_batched_exploration.ipynb",
         "04_accuracy_and_cost.ipynb",
+        "05_uncertainty_and_design.ipynb",
     ]
 
 

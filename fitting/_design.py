@@ -1,0 +1,274 @@
+"""Experiment design: which impacts to measure next, by greedy D-optimal choice.
+
+Each candidate impact ``i`` contributes the Fisher information ``F_i = J_i^T S_i^-1 J_i`` about
+the log-parameters, where ``J_i`` holds the derivatives of its observables with respect to
+``ln p`` at the scene's values (forward mode, from the fit's compiled residual program) and
+``S_i`` their noise variances. The chosen set maximizes ``log det(ridge I + sum F_i)``
+greedily: each step adds the candidate with the largest gain in log-determinant. The small
+ridge (``ridge`` times the mean diagonal of the average candidate's information) makes the
+first picks well defined while fewer impacts than parameters are chosen.
+
+Noise: ``sigma`` per observable in its unit; default the fit's default scales
+(:data:`fitting.DEFAULT_SCALES`: cor_n and cor_t 0.01, vt_out 1 % of the speed, omega_out 1 %
+of speed/radius, rebound angle 1 degree), i.e. a 1 % measurement of each observable's natural
+scale.
+
+Near the capture threshold the model is least smooth (the rebound ends in a capture over a
+short range of speed) and its derivatives promise information a measurement may not deliver:
+candidates that the model captures at the scene's values, and those whose outcome (rebound
+or capture) changes when any parameter moves by ``perturbation`` (relative) either way, are
+dropped before the choice, and counted in the result.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+import jaximpact
+from jaximpact.tables import ImpactTable, atomic_write_text, read_impacts, readonly_array
+
+from ._data import OBSERVABLES, Observations
+from ._objective import FitError, Objective, check_names, default_scales, get_parameter
+from ._program import ResidualProgram
+from ._transforms import dphys_du, to_unbounded
+
+__all__ = ["DesignResult", "design", "log_det_information", "write_design"]
+
+#: Observables a design can plan for (``captured`` carries no smooth information).
+DESIGN_OBSERVABLES = tuple(n for n in OBSERVABLES if n != "captured")
+
+
+@dataclass
+class DesignResult:
+    """Result of :func:`design`.
+
+    Attributes:
+        params, observables: what the design is for.
+        candidates: the candidate `ImpactTable`.
+        usable: indices of the candidates kept (see the module docstring on the others).
+        dropped_captured, dropped_near_capture: indices of the candidates dropped.
+        chosen: indices of the chosen candidates, in the order chosen.
+        gain: log-det gain of each pick (nats); log_det: after each pick (with the ridge).
+        information: ``(n_candidates, p, p)`` Fisher information of each candidate in
+            ``ln p`` (zero for dropped ones).
+        ridge: the ridge added to the information matrix.
+        sigma: ``(n_candidates, k)`` the noise assumed for each candidate's observables.
+    """
+
+    params: tuple[str, ...]
+    observables: tuple[str, ...]
+    candidates: ImpactTable
+    usable: np.ndarray
+    dropped_captured: np.ndarray
+    dropped_near_capture: np.ndarray
+    chosen: np.ndarray
+    gain: np.ndarray
+    log_det: np.ndarray
+    information: np.ndarray
+    ridge: float
+    sigma: np.ndarray
+
+    def message(self) -> str:
+        return (
+            f"design: {len(self.chosen)} of {len(self.candidates)} candidate impacts chosen "
+            f"for {', '.join(self.params)} from {', '.join(self.observables)}; dropped "
+            f"{len(self.dropped_captured)} captured at the scene's values and "
+            f"{len(self.dropped_near_capture)} near the capture threshold (outcome changes "
+            "within the parameter perturbation)"
+        )
+
+
+def log_det_information(information: np.ndarray, subset, ridge: float = 0.0) -> float:
+    """``log det(ridge I + sum_{i in subset} F_i)``."""
+    p = information.shape[-1]
+    m = ridge * np.eye(p) + np.sum(information[np.asarray(subset, dtype=int)], axis=0)
+    sign, value = np.linalg.slogdet(m)
+    return float(value) if sign > 0 else -math.inf
+
+
+def greedy_d_optimal(info: np.ndarray, usable, n: int, *, ridge: float = 1e-6):
+    """Greedy D-optimal choice of ``n`` of the ``usable`` candidates, each once.
+
+    ``info``: ``(c, p, p)`` information of each candidate. The ridge is ``ridge`` times the
+    mean diagonal of the usable candidates' information. Returns ``(chosen, gain, log_det,
+    ridge_abs)``: indices in the order chosen, the log-det gain of each pick and the log-det
+    after it (with the ridge), and the absolute ridge."""
+    usable = np.asarray(usable, dtype=int)
+    p = info.shape[-1]
+    ridge_abs = ridge * float(np.mean(np.trace(info[usable], axis1=1, axis2=2))) / p
+    m = ridge_abs * np.eye(p)
+    current = float(np.linalg.slogdet(m)[1])
+    available = np.zeros(len(info), bool)
+    available[usable] = True
+    chosen, gains, logdets = [], [], []
+    for _ in range(n):
+        sign, trial = np.linalg.slogdet(m[None] + info)
+        trial = np.where((sign > 0) & available, trial, -np.inf)
+        best = int(np.argmax(trial))
+        chosen.append(best)
+        gains.append(float(trial[best] - current))
+        current = float(trial[best])
+        logdets.append(current)
+        m = m + info[best]
+        available[best] = False
+    return np.array(chosen), np.array(gains), np.array(logdets), ridge_abs
+
+
+def _candidate_observations(table: ImpactTable, observables, source) -> Observations:
+    """Every observable at every candidate, with placeholder values (the program gets its own)."""
+    n, k = len(table), len(observables)
+    index = np.repeat(np.arange(n), k)
+    return Observations(
+        speed=readonly_array(table.speed[index]),
+        angle_deg=readonly_array(table.angle_deg[index]),
+        omega0=readonly_array(table.omega0[index]),
+        observable=readonly_array(np.tile(list(observables), n), str),
+        value=readonly_array(np.full(n * k, 0.5)),
+        sigma=readonly_array(np.full(n * k, np.nan)),
+        line=readonly_array(np.repeat(np.arange(n), k) + 2, np.int64),
+        impact_index=readonly_array(index, np.int64),
+        impacts=table,
+        source=source,
+        provenance="",
+        layout="long",
+    )
+
+
+def design(
+    scene: jaximpact.Scene,
+    candidates,
+    params: Sequence[str],
+    n: int,
+    *,
+    observables: Sequence[str] = ("cor_n",),
+    sigma: Mapping[str, float] | None = None,
+    values: Mapping[str, float] | None = None,
+    ridge: float = 1e-6,
+    perturbation: float = 0.1,
+    method: str | None = None,
+) -> DesignResult:
+    """Choose ``n`` impacts from ``candidates`` that most reduce the parameters' uncertainty.
+
+    **Arguments:**
+    - `scene`: parameter values at which the information is computed (with `values`).
+    - `candidates`: an `ImpactTable` or the path of an impacts CSV (speed, angle_deg[, omega0]).
+    - `params`: the parameters to determine.
+    - `n`: impacts to choose (at most the usable candidates).
+    - `observables`: what will be measured at each impact (default ``cor_n``).
+    - `sigma`: ``{observable: sigma}`` in the observable's unit (default: see the module).
+    - `values`: parameter values overriding the scene's.
+    - `ridge`: relative ridge (see the module docstring).
+    - `perturbation`: relative parameter change for the near-capture test.
+
+    **Raises:** `FitError` for bad names, options or too few usable candidates.
+    """
+    names = check_names(params)
+    observables = tuple(observables)
+    if not observables:
+        raise FitError("observables: name at least one of " + ", ".join(DESIGN_OBSERVABLES))
+    for o in observables:
+        if o not in DESIGN_OBSERVABLES:
+            raise FitError(
+                f"observables: unknown or unusable {o!r}; allowed: {', '.join(DESIGN_OBSERVABLES)}"
+            )
+    sigma = dict(sigma or {})
+    for o, s in sigma.items():
+        if o not in observables:
+            raise FitError(f"sigma given for {o!r}, which is not among the observables")
+        if not (math.isfinite(s) and s > 0):
+            raise FitError(f"sigma of {o} must be finite and > 0, got {s!r}")
+    if not (isinstance(n, int | np.integer) and n >= 1):
+        raise FitError(f"n must be an integer >= 1, got {n!r}")
+    if not (ridge > 0 and math.isfinite(ridge)):
+        raise FitError(f"ridge must be > 0, got {ridge!r}")
+    if not 0 < perturbation < 1:
+        raise FitError(f"perturbation must be in (0, 1), got {perturbation!r}")
+    source = ""
+    if not isinstance(candidates, ImpactTable):
+        source = str(candidates)
+        candidates = read_impacts(candidates)
+    if candidates.overrides:
+        raise FitError(
+            f"{source or 'candidates'}: per-impact parameter columns "
+            f"({', '.join(candidates.overrides)}) are not supported in a design"
+        )
+    if "cor_t" in observables and np.any(candidates.angle_deg == 0):
+        raise FitError("observables: cor_t is undefined at normal impacts (angle_deg = 0)")
+
+    from ._objective import set_parameters
+
+    scene = set_parameters(scene, dict(values or {}))
+    theta = np.array([get_parameter(scene, nm) for nm in names])
+    obs = _candidate_observations(candidates, observables, source or "candidates")
+    objective = Objective(scene, obs, names, method=method)
+    program = ResidualProgram(objective, 1)
+    radius = get_parameter(scene, "radius")
+    scale = default_scales(obs.observable, obs.speed, radius)
+    for o, s in sigma.items():
+        scale = np.where(obs.observable == o, s, scale)
+    u0 = to_unbounded(names, theta)
+    _, jac, status = program(u0[None], value=0.0, scale=scale)
+    # Derivatives in ln p (the solver variable u is ln p except for bounded parameters).
+    jac = jac[0] * (theta / dphys_du(names, theta))[None, :]
+    rebound = status[0] == jaximpact.Status.REBOUND
+    stable = rebound.copy()
+    for i in range(len(names)):
+        for sign in (-1.0, 1.0):
+            u = u0.copy()
+            u[i] = to_unbounded([names[i]], [theta[i] * (1 + sign * perturbation)])[0]
+            _, _, st = program(u[None], value=0.0, scale=scale)
+            stable &= (st[0] == jaximpact.Status.REBOUND) == rebound
+    n_cand = len(candidates)
+    dropped_captured = np.flatnonzero(~rebound)
+    dropped_near = np.flatnonzero(rebound & ~stable)
+    usable = np.flatnonzero(
+        rebound
+        & stable
+        & np.all(np.isfinite(jac.reshape(n_cand, len(observables), -1)), axis=(1, 2))
+    )
+    if n > len(usable):
+        raise FitError(
+            f"n = {n} but only {len(usable)} usable candidates ({len(dropped_captured)} "
+            f"captured, {len(dropped_near)} near the capture threshold dropped)"
+        )
+    per = jac.reshape(n_cand, len(observables), len(names))
+    info = np.einsum("ckp,ckq->cpq", per, per)
+    info[~np.isin(np.arange(n_cand), usable)] = 0.0
+    chosen, gains, logdets, ridge_abs = greedy_d_optimal(info, usable, n, ridge=ridge)
+    return DesignResult(
+        params=names,
+        observables=observables,
+        candidates=candidates,
+        usable=usable,
+        dropped_captured=dropped_captured,
+        dropped_near_capture=dropped_near,
+        chosen=chosen,
+        gain=gains,
+        log_det=logdets,
+        information=info,
+        ridge=ridge_abs,
+        sigma=scale.reshape(n_cand, len(observables)),
+    )
+
+
+def write_design(path, result: DesignResult) -> None:
+    """DESIGN.csv: the chosen impacts in the order chosen, with ``gain_logdet`` (nats added to
+    ``log det`` of the information) and ``log_det`` after the pick; atomically."""
+    t = result.candidates
+    lines = [
+        "# jaximpact design: greedy D-optimal (fitting._design) for "
+        + ", ".join(result.params)
+        + "; observables "
+        + ", ".join(result.observables),
+        "order,speed,angle_deg,omega0,gain_logdet,log_det",
+    ]
+    for k, i in enumerate(result.chosen):
+        lines.append(
+            f"{k + 1},{float(t.speed[i])!r},{float(t.angle_deg[i])!r},{float(t.omega0[i])!r},"
+            f"{result.gain[k]:.6g},{result.log_det[k]:.6g}"
+        )
+    atomic_write_text(path, "\n".join(lines) + "\n")

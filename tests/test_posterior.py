@@ -1,0 +1,434 @@
+"""Posterior (NUTS), profile likelihood and experiment design (issue 11).
+
+The default tests drive the same sampling, profile and design code with toy problems whose
+answer is known in closed form (a linear-Gaussian model: posterior mean and covariance, the
+profile interval, the best design), so they run without compiling the simulator; the tests
+on the simulator itself (table1 scene: C_A, C_H, f0) are in the slow step.
+"""
+
+import itertools
+import json
+import math
+
+import jax
+import numpy as np
+import pytest
+
+import fitting
+import jaximpact
+from fitting import _design, _posterior, _profile
+from fitting._posterior_report import add_to_result_dict
+from fitting._priors import Prior, parse_prior, priors_for
+from jaximpact.cli import main as cli_main
+
+NAMES = ("C_A", "C_H", "f0")
+TRUTH = {"C_A": 0.75, "C_H": 0.25, "f0": 300.0}
+
+
+def _linear_problem(seed=0, n=20):
+    """Residuals ``A u - y`` (unit sigma), linear in ``u = ln p``: with the default
+    log-uniform priors (flat in u, far wider than the likelihood) the posterior of u is
+    Gaussian with mean ``(A^T A)^-1 A^T y`` and covariance ``(A^T A)^-1``."""
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((n, 3)) * np.array([1.0, 3.0, 0.5])
+    A[:, 1] += 2.7 * A[:, 0]  # correlated, as C_A and f0 are
+    u_true = np.log([TRUTH[k] for k in NAMES])
+    y = A @ u_true + rng.standard_normal(n)
+
+    def oracle(U):
+        r = np.einsum("ij,...j->...i", A, U) - y
+        return r, np.broadcast_to(A, U.shape[:-1] + A.shape)
+
+    cov = np.linalg.inv(A.T @ A)
+    return oracle, A, y, cov @ A.T @ y, cov
+
+
+def _sample_toy(oracle, n, mean, cov, **kw):
+    options = dict(
+        likelihood="gaussian",
+        nu=4.0,
+        chains=4,
+        draws=400,
+        warmup=200,
+        seed=0,
+        jitter=0.5,
+        target_accept=0.9,
+        progress=False,
+    )
+    options.update(kw)
+    return _posterior._sample(
+        oracle,
+        NAMES,
+        n,
+        mean,
+        cov,
+        priors_for(NAMES, None),
+        np.full(n, -1),
+        (),
+        [],
+        **options,
+    )
+
+
+@pytest.fixture(scope="module")
+def toy_posterior():
+    oracle, A, y, mean, cov = _linear_problem()
+    return _sample_toy(oracle, len(y), mean, cov), mean, cov
+
+
+def test_sampler_recovers_linear_gaussian_posterior(toy_posterior):
+    result, mean, cov = toy_posterior
+    assert result.converged, result.message
+    assert result.divergences == 0
+    u = np.log(result.draws.reshape(-1, 3))
+    for i, name in enumerate(NAMES):
+        sd = math.sqrt(cov[i, i])
+        mc_error = sd / math.sqrt(result.summary[name]["ess"])
+        assert abs(u[:, i].mean() - mean[i]) < 4 * mc_error, name
+        # sd of a sample sd ~ sd / sqrt(2 ess); 5 such errors
+        assert abs(u[:, i].std() / sd - 1) < 5 / math.sqrt(2 * result.summary[name]["ess"])
+    corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    assert np.allclose(np.corrcoef(u, rowvar=False), corr, atol=0.05)
+    # 90 % interval of the closed form (in u, mapped to physical) against the draws'
+    for i, name in enumerate(NAMES):
+        q05 = math.exp(mean[i] - 1.6449 * math.sqrt(cov[i, i]))
+        s = result.summary[name]
+        assert abs(math.log(s["q05"] / q05)) < 0.2 * math.sqrt(cov[i, i]), name
+
+
+def test_log_density_gradient_matches_finite_differences():
+    """The sampler's gradient: prior Jacobian terms and the custom_jvp through the host
+    callback, against central differences of the same log density (Student-t, fitted noise
+    factor, a normal prior, friction's bounded transform)."""
+    oracle, A, y, mean, cov = _linear_problem()
+    names = ("C_A", "friction", "f0")
+    priors = {
+        "C_A": Prior("normal", 1.0, 0.5),
+        "friction": parse_prior("friction", "loguniform:0.01:1.4"),
+        "f0": Prior("loguniform", 1.0, 1e4),
+    }
+    residuals = _posterior._residual_function(oracle, len(y), 3, [0])
+    groups = np.zeros(len(y), int)
+    groups[:5] = -1  # rows with their own sigma
+    f = _posterior._log_density(residuals, names, priors, groups, 1, "student-t", 4.0)
+    z = np.array([-0.3, -0.5, 5.6, math.log(1.7)])
+    grad = np.asarray(jax.jit(jax.grad(f))(z))
+    f = jax.jit(f)
+    h = 1e-5
+    fd = [(float(f(z + h * e)) - float(f(z - h * e))) / (2 * h) for e in np.eye(4)]
+    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-6)
+
+
+def test_refusal_on_rhat_and_divergences():
+    """Split R-hat and the refusal rule on draws with a known answer: four chains from one
+    normal distribution pass; shift one chain by one sd and R-hat rises far above 1.01 (a
+    shift ``d`` in one of 8 half-chains gives ``R^2 ~ 1 + d^2 / 8``); one divergence refuses."""
+    rng = np.random.default_rng(0)
+    good = rng.standard_normal((4, 1000))
+    assert abs(_posterior.split_rhat(good) - 1) < 0.01
+    assert _posterior.effective_sample_size(good) == pytest.approx(4000, rel=0.15)
+    stats = {"C_A": {"rhat": _posterior.split_rhat(good)}}
+    assert _posterior.judge(stats, 0) == []
+    assert "divergent" in _posterior.judge(stats, 1)[0]
+    bad = good.copy()
+    bad[0] += 1.0
+    rhat = _posterior.split_rhat(bad)
+    assert 1.03 < rhat < 1.15
+    assert "R-hat of f0" in _posterior.judge({"C_A": stats["C_A"], "f0": {"rhat": rhat}}, 0)[0]
+    assert _posterior.judge({"C_A": {"rhat": math.nan}}, 0)
+
+
+@pytest.mark.slow  # a second NUTS compilation (about 40 s on a shared machine)
+def test_chains_stuck_in_separate_modes_are_refused():
+    """Two modes at u = +-1 (r = (u^2 - 1) / 0.05 for C_A; the others linear): chains
+    started in different modes never mix, so R-hat is far above 1.01 and the run is refused."""
+
+    def oracle(U):
+        U = np.asarray(U)
+        r = np.stack([(U[..., 0] ** 2 - 1) / 0.05, U[..., 1] / 0.1, (U[..., 2] - 5) / 0.1], -1)
+        J = np.zeros(U.shape[:-1] + (3, 3))
+        J[..., 0, 0] = 2 * U[..., 0] / 0.05
+        J[..., 1, 1] = 1 / 0.1
+        J[..., 2, 2] = 1 / 0.1
+        return r, J
+
+    cov = np.diag([1e-4, 1e-2, 1e-2])
+    result = _sample_toy(
+        oracle,
+        3,
+        np.array([1.0, 0.0, 5.0]),
+        cov,
+        draws=60,
+        warmup=60,
+        z0=np.array([[1.0, 0, 5], [-1.0, 0, 5], [1.0, 0, 5], [-1.0, 0, 5]]),
+    )
+    assert not result.converged
+    assert result.status == "not converged"
+    assert result.summary["C_A"]["rhat"] > 1.5
+    assert any("R-hat" in p for p in result.problems)
+
+
+def test_posterior_json_fields(toy_posterior):
+    result = toy_posterior[0]
+    d = add_to_result_dict({"params": {n: {"value": 1.0, "stderr": 0.1} for n in NAMES}}, result)
+    d = json.loads(json.dumps(d))  # JSON-safe
+    flat = result.draws.reshape(-1, 3)
+    for i, n in enumerate(NAMES):
+        post = d["params"][n]["posterior"]
+        assert set(post) == {"mean", "median", "sd", "q05", "q95", "rhat", "ess"}
+        assert post["q05"] < post["median"] < post["q95"]
+        assert post["mean"] == pytest.approx(flat[:, i].mean(), rel=1e-12)
+        assert post["q05"] == pytest.approx(np.quantile(flat[:, i], 0.05), rel=1e-12)
+    corr = np.array(d["posterior"]["correlation"])
+    assert corr.shape == (3, 3) and np.allclose(np.diag(corr), 1)
+    assert d["posterior"]["divergences"] == 0 and d["posterior"]["chains"] == 4
+    assert d["posterior"]["priors"]["f0"] == "loguniform:0.1:100000"
+
+
+def test_profile_interval_equals_gaussian_on_linear_problem():
+    oracle, A, y, mean, cov = _linear_problem(seed=3)
+
+    def evaluate(U):
+        r, J = oracle(U)
+        return r, np.array(J), np.zeros((len(U), 1))
+
+    cost_min = 0.5 * float(np.sum(oracle(mean)[0] ** 2))
+    for k in range(3):
+        se = math.sqrt(cov[k, k])
+        grid = mean[k] + np.linspace(-3.5, 3.5, 9) * se
+        costs, others, ok = _profile.profile_costs(evaluate, 4, mean, k, grid)
+        assert ok.all()
+        _, lo, hi = _profile.likelihood_ratio_interval(grid, costs, cost_min, 1.0, mean[k])
+        assert lo == pytest.approx(mean[k] - 1.959964 * se, abs=1e-4 * se)
+        assert hi == pytest.approx(mean[k] + 1.959964 * se, abs=1e-4 * se)
+
+
+def test_greedy_design_finds_the_best_pair_and_beats_random():
+    """Rank-one candidates ``a a^T``: det of a pair is ``(|a||b| sin angle)^2``. The best pair
+    (by brute force) is two strong, nearly orthogonal candidates among many weak or parallel
+    ones; the greedy choice must find it and beat random pairs by far."""
+    rng = np.random.default_rng(0)
+    angles = rng.uniform(0, np.pi, 40)
+    lengths = rng.uniform(0.2, 1.0, 40)
+    lengths[7], angles[7] = 3.0, 0.1
+    lengths[23], angles[23] = 2.8, 0.1 + np.pi / 2 - 0.05
+    a = np.stack([lengths * np.cos(angles), lengths * np.sin(angles)], 1)
+    info = np.einsum("ci,cj->cij", a, a)
+    chosen, gains, _, _ = _design.greedy_d_optimal(info, np.arange(40), 2, ridge=1e-6)
+    best = max(
+        itertools.combinations(range(40), 2), key=lambda s: fitting.log_det_information(info, s)
+    )
+    assert set(chosen) == set(best) == {7, 23}
+    assert np.all(gains > 0)
+    designed = fitting.log_det_information(info, chosen)
+    random = [
+        fitting.log_det_information(info, rng.choice(40, 2, replace=False)) for _ in range(50)
+    ]
+    assert designed - np.median(random) > math.log(5)
+
+
+def test_prior_specs_and_bad_input():
+    assert parse_prior("f0", "loguniform:10:1e4") == Prior("loguniform", 10.0, 1e4)
+    assert parse_prior("C_A", "normal:0.8:0.2") == Prior("normal", 0.8, 0.2)
+    for bad in ("uniform:1:2", "loguniform:5:1", "normal:1:0", "normal:1", "loguniform:a:2"):
+        with pytest.raises(fitting.FitError, match="prior of f0"):
+            parse_prior("f0", bad)
+    with pytest.raises(fitting.FitError, match="not fitted"):
+        priors_for(NAMES, {"K": "loguniform:1:2"})
+
+
+@pytest.mark.parametrize(
+    "extra, field",
+    [
+        (["--posterior", "--prior", "f0=loguniform:5:1"], "prior of f0"),
+        (["--posterior", "--prior", "K=normal:1:1"], "--prior K"),
+        (["--posterior", "--prior", "f0"], "--prior expects"),
+        (["--draws", "x.nc"], "--draws needs --posterior"),
+        (["--posterior", "--chains", "0"], "--chains"),
+        (["--posterior", "--samples", "2"], "--samples"),
+        (["--profile", "K"], "--profile K"),
+        (["--profile-plot", "p.png"], "--profile-plot needs --profile"),
+    ],
+)
+def test_cli_bad_posterior_options_exit_2(extra, field, tmp_path, capsys):
+    data = tmp_path / "d.csv"
+    data.write_text("speed,angle_deg,observable,value\n1.0,0.0,cor_n,0.5\n")
+    code = cli_main(["fit", str(data), "--params", *NAMES, *extra])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert field in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "extra, field",
+    [
+        (["--observables", "captured"], "observables"),
+        (["--sigma", "cor_n=-1"], "sigma of cor_n"),
+        (["--sigma", "vt_out=0.1"], "sigma given for 'vt_out'"),
+        (["--n", "0"], "--n"),
+    ],
+)
+def test_cli_design_bad_input_exit_2(extra, field, tmp_path, capsys):
+    cand = tmp_path / "cand.csv"
+    cand.write_text("speed,angle_deg\n1.0,0.0\n2.0,30.0\n")
+    args = [
+        "design",
+        "--params",
+        *NAMES,
+        "--candidates",
+        str(cand),
+        "--n",
+        "1",
+        "-o",
+        str(tmp_path / "design.csv"),
+        *extra,
+    ]
+    code = cli_main(args)
+    err = capsys.readouterr().err
+    assert code == 2
+    assert field in err and "Traceback" not in err
+
+
+def test_cli_design_missing_candidates_exit_2(tmp_path, capsys):
+    code = cli_main(
+        [
+            "design",
+            "--params",
+            "f0",
+            "--candidates",
+            str(tmp_path / "none.csv"),
+            "--n",
+            "2",
+            "-o",
+            str(tmp_path / "d.csv"),
+        ]
+    )
+    assert code == 2
+    assert "none.csv" in capsys.readouterr().err
+
+
+# -- on the simulator (slow) ---------------------------------------------------------------
+
+
+def _write_data(path, speed, angle, values, sigma):
+    rows = ["speed,angle_deg,observable,value,sigma"]
+    rows += [
+        f"{float(s)!r},{float(a)!r},cor_n,{float(v)!r},{sigma}"
+        for s, a, v in zip(speed, angle, values, strict=True)
+    ]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.slow  # compiles the simulator's residual program (about a minute on 2 cores)
+def test_design_on_table1_beats_random_and_drops_captures(tmp_path):
+    scene = fitting.Objective(
+        jaximpact.table1_scene(),
+        _write_data(tmp_path / "p.csv", [1.0], [0.0], [0.5], 0.01),
+        NAMES,
+    ).scene_at(TRUTH)
+    speed = np.geomspace(0.05, 5.0, 12)
+    angle = np.array([0.0, 30.0, 60.0])
+    s, a = np.meshgrid(speed, angle)
+    cand = tmp_path / "cand.csv"
+    cand.write_text(
+        "speed,angle_deg\n"
+        + "\n".join(
+            f"{x!r},{y!r}" for x, y in zip(s.ravel().tolist(), a.ravel().tolist(), strict=True)
+        )
+        + "\n"
+    )
+    result = fitting.design(scene, cand, NAMES, 6, sigma={"cor_n": 0.003})
+    # the slowest impacts are captured by the Table 1 sphere: dropped, not chosen
+    assert len(result.dropped_captured) > 0
+    assert not set(result.chosen) & set(result.dropped_captured)
+    assert not set(result.chosen) & set(result.dropped_near_capture)
+    assert np.all(np.diff(result.log_det) > 0)
+    rng = np.random.default_rng(0)
+    random = [
+        fitting.log_det_information(result.information, rng.choice(result.usable, 6, replace=False))
+        for _ in range(50)
+    ]
+    assert fitting.log_det_information(result.information, result.chosen) > np.median(random)
+    out = tmp_path / "design.csv"
+    code = cli_main(
+        [
+            "design",
+            "table1",
+            "--params",
+            *NAMES,
+            "--candidates",
+            str(cand),
+            "--n",
+            "6",
+            "--sigma",
+            "cor_n=0.003",
+            "-o",
+            str(out),
+        ]
+    )
+    assert code == 0
+    lines = [x for x in out.read_text().splitlines() if not x.startswith("#")]
+    assert lines[0] == "order,speed,angle_deg,omega0,gain_logdet,log_det"
+    assert len(lines) == 7
+
+
+@pytest.mark.slow  # a fit, a short posterior run and a profile through the CLI
+def test_cli_short_posterior_is_refused_with_exit_3_and_writes_json(tmp_path, capsys):
+    speed = np.geomspace(0.3, 5.0, 10)
+    angle = np.tile([0.0, 30.0], 5)
+    truth = fitting.Objective(
+        jaximpact.table1_scene(), _write_data(tmp_path / "p.csv", [1.0], [0.0], [0.5], 0.01), NAMES
+    ).scene_at(TRUTH)
+    clean = np.asarray(jaximpact.simulate(truth, speed, angle, 0.0).cor_n)
+    noisy = clean + 0.003 * np.random.default_rng(2).standard_normal(clean.size)
+    data = _write_data(tmp_path / "d.csv", speed, angle, noisy, 0.003)
+    out = tmp_path / "fit.json"
+    args = [
+        "fit",
+        "table1",
+        str(data),
+        "--params",
+        *NAMES,
+        "--init",
+        "C_A=0.75",
+        "C_H=0.25",
+        "f0=300",
+        "--starts",
+        "1",
+        "--posterior",
+        "--warmup",
+        "3",
+        "--samples",
+        "6",
+        "--profile",
+        "f0",
+        "--profile-points",
+        "5",
+        "-o",
+        str(out),
+        "--no-progress",
+        "--draws",
+        str(tmp_path / "draws.nc"),
+        "--corner",
+        str(tmp_path / "corner.png"),
+    ]
+    code = cli_main(args)
+    captured = capsys.readouterr()
+    assert code == 3, captured.err
+    assert "posterior not converged" in captured.err
+    d = json.loads(out.read_text())
+    assert d["posterior"]["status"] == "not converged"
+    for n in NAMES:
+        assert set(d["params"][n]["posterior"]) == {
+            "mean",
+            "median",
+            "sd",
+            "q05",
+            "q95",
+            "rhat",
+            "ess",
+        }
+    assert d["profile"]["name"] == "f0"
+    assert (tmp_path / "draws.nc").stat().st_size > 0
+    assert (tmp_path / "corner.png").stat().st_size > 0
