@@ -289,9 +289,11 @@ def _solve_one(
         )
     else:  # without adhesion the normal energy cannot fall below zero
         cond = lambda t, y, args, **kw: y["n"] - floor  # noqa: E731
-    # Event times to ~1e-10 Hertz times: tighter chases rounding noise in E (a difference of
-    # large terms when adhesion dominates a slow impact) and the root find would not converge.
-    tol = max(1e-10, 100 * float(jnp.finfo(dtype).eps))
+    # Event times to ~1e-10 Hertz times in float64: tighter chases rounding noise in E (a
+    # difference of large terms when adhesion dominates a slow impact) and the root find would
+    # not converge. float32: 1000 ulp (1.2e-4), where 100 ulp left Newton failing on 20 of
+    # 30,000 slow impacts near capture (7 still fail: docs/open_points.md; issue 12).
+    tol = max(1e-10, 1000 * float(jnp.finfo(dtype).eps))
     event = diffrax.Event(cond, root_finder=optx.Newton(rtol=tol, atol=tol), direction=False)
     controller, dt0 = make_controller(cfg.method, cfg.rtol, cfg.atol, cfg.dt, _error_norm)
     solver = make_solver(cfg.method, dtype)
