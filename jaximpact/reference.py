@@ -453,6 +453,27 @@ def _make_event(g, S, terminal, direction):
     return ev
 
 
+def _segment_end(sol, y_new, dt, T, stalls) -> tuple[int, str]:
+    """How a ``solve_ivp`` segment ended: the updated count of zero-length segments in a row,
+    and a message when the run must stop there (solver failure, time limit, stalled)."""
+    if sol.status == -1 or not np.all(np.isfinite(y_new)):
+        return stalls, f"solver failure: {sol.message}"
+    if sol.status == 0:
+        return stalls, "time limit reached"
+    stalls = stalls + 1 if dt <= 1e-14 * T else 0
+    return stalls, "stalled at a switch" if stalls > _MAX_STALLS else ""
+
+
+def _fired_events(specs, sol) -> list:
+    """The kinds of the terminal events that stopped the segment (earliest kinds first on
+    exact ties, as listed in ``specs``)."""
+    return [
+        spec[3]
+        for spec, te in zip(specs, sol.t_events, strict=True)
+        if spec[1] and len(te) and te[-1] == sol.t[-1]
+    ]
+
+
 def simulate_impact(
     p: Params,
     speed: float,
@@ -579,26 +600,11 @@ def simulate_impact(
         y_new = ys[:, -1].copy()
         if history:
             segments.append((t, t_new, sol.sol, mode, sol.t * T, ys))
-        if sol.status == -1 or not np.all(np.isfinite(y_new)):
-            message = f"solver failure: {sol.message}"
-            y, t = y_new, t_new
-            break
-        if sol.status == 0:
-            message = "time limit reached"
-            y, t = y_new, t_new
-            break
-        stalls = stalls + 1 if t_new - t <= 1e-14 * T else 0
-        if stalls > _MAX_STALLS:
-            message = "stalled at a switch"
-            y, t = y_new, t_new
-            break
+        stalls, message = _segment_end(sol, y_new, t_new - t, T, stalls)
         y, t = y_new, t_new
-        # which terminal event stopped the run (earliest kinds first on exact ties)
-        fired = [
-            spec[3]
-            for spec, te in zip(specs, sol.t_events, strict=True)
-            if spec[1] and len(te) and te[-1] == sol.t[-1]
-        ]
+        if message:
+            break
+        fired = _fired_events(specs, sol)
         if "rebound" in fired:
             status = "rebound"
             break
@@ -1013,25 +1019,11 @@ def _simulate_mindlin(
             if kind == "zero_slip" and len(te) and math.isnan(roll_time):
                 roll_time = float(te[0]) * T
         t_new, y_new = float(sol.t[-1]) * T, ys[:, -1].copy()
-        if sol.status == -1 or not np.all(np.isfinite(y_new)):
-            message = f"solver failure: {sol.message}"
-            y, t = y_new, t_new
-            break
-        if sol.status == 0:
-            message = "time limit reached"
-            y, t = y_new, t_new
-            break
-        stalls = stalls + 1 if t_new - t <= 1e-14 * T else 0
-        if stalls > _MAX_STALLS:
-            message = "stalled at a switch"
-            y, t = y_new, t_new
-            break
+        stalls, message = _segment_end(sol, y_new, t_new - t, T, stalls)
         y, t = y_new, t_new
-        fired = [
-            spec[3]
-            for spec, te in zip(specs, sol.t_events, strict=True)
-            if spec[1] and len(te) and te[-1] == sol.t[-1]
-        ]
+        if message:
+            break
+        fired = _fired_events(specs, sol)
         if "rebound" in fired:
             status = "rebound"
             break
