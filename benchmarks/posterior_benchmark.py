@@ -82,7 +82,7 @@ def main(argv=None):
     ap.add_argument("--time", action="store_true")
     ap.add_argument("--coverage", type=int, default=0)
     ap.add_argument("--design", action="store_true")
-    ap.add_argument("--warmup", type=int, default=1000)
+    ap.add_argument("--warmup", type=int, default=300)
     ap.add_argument("--draws", type=int, default=1000)
     ap.add_argument("--cache", help="compilation cache (default: a new temporary directory)")
     ap.add_argument("--json", help="write the numbers here")

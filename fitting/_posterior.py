@@ -44,6 +44,13 @@ LIKELIHOODS = ("gaussian", "student-t")
 MAX_RHAT = 1.01
 #: NUTS tree depth limit (at most 2^MAX_DOUBLINGS - 1 log-density evaluations per draw).
 MAX_DOUBLINGS = 8
+#: Default solver rtol of the posterior's evaluations in float64 (scenes that set their own
+#: rtol keep it). The sampler needs the log density to well under 0.1 and its gradient to a few
+#: per cent; rtol 1e-8 gives both with a wide margin (measured in BENCHMARKS.md: "Posterior
+#: and design") in about half the steps of the fit's default 1e-10.
+SAMPLING_RTOL = 1e-8
+#: Default warm-up steps per chain (see `_run_nuts`: it starts from the least-squares shape).
+WARMUP = 300
 #: Range of the sampled noise factors (log-uniform prior).
 NOISE_FACTOR_RANGE = (1e-3, 1e3)
 
@@ -172,95 +179,86 @@ def _noise_groups(objective: Objective) -> tuple[np.ndarray, tuple[str, ...]]:
 
 
 def _run_nuts(log_density, z0, metric, *, warmup, draws, seed, target_accept, progress, counter):
-    """Window adaptation then NUTS for every chain (rows of ``z0``), the adaptation started
-    from the inverse mass matrix ``metric`` (the least-squares covariance: the chains then
-    start with steps of the posterior's own shape instead of searching for them with
-    deep, costly trees). Returns draws
-    ``(C, D, d)``, log densities ``(C, D)``, divergent ``(C, D)``, acceptance ``(C, D)``,
-    step sizes ``(C,)`` and the seconds of warm-up and sampling."""
+    """Warm-up then NUTS draws for every chain (rows of ``z0``). Returns draws ``(C, D, d)``,
+    log densities ``(C, D)``, divergent ``(C, D)``, acceptance ``(C, D)``, step sizes ``(C,)``
+    and the seconds of warm-up and sampling.
+
+    The warm-up is shorter and shallower than Stan's windowed scheme because it starts from
+    the least-squares covariance ``metric`` (the posterior's own shape, the C_A-f0 ridge
+    included) instead of learning the metric from scratch:
+
+    1. first half: dual averaging of one step size shared by all chains, with ``metric``;
+    2. the metric re-estimated from the second quarter's draws of all chains pooled (4 chains
+       x W/4 draws; Stan's windows use one chain's few dozen), shrunk slightly towards
+       ``metric``;
+    3. second half: dual averaging again with that metric.
+
+    One shared step size and metric keep the chains' trees of similar depth, which matters
+    because the chains are one batch: every log-density call evaluates all of them, so a
+    step costs as many calls as its deepest chain needs (measured in BENCHMARKS.md)."""
     import blackjax
+    from blackjax.adaptation.step_size import dual_averaging_adaptation
 
     key = jax.random.PRNGKey(seed)
     k_warm, k_draw = jax.random.split(key)
-    chains = z0.shape[0]
-    adapt = blackjax.window_adaptation(
-        blackjax.nuts,
-        log_density,
-        is_mass_matrix_diagonal=False,  # a dense mass matrix takes the C_A-f0 correlation
-        initial_inverse_mass_matrix=jnp.asarray(metric),
-        initial_step_size=0.5,
-        target_acceptance_rate=target_accept,
-        max_num_doublings=MAX_DOUBLINGS,
-        adaptation_info_fn=blackjax.adaptation.base.get_filter_adapt_info_fn(),
-    )
-
-    def warm(k, z):
-        (state, parameters), _ = adapt.run(k, z, num_steps=warmup)
-        return state, parameters
-
-    t0 = time.perf_counter()
-    bar = tqdm(
-        desc=f"posterior warm-up ({chains} chains x {warmup})",
-        unit="eval",
-        disable=not progress,
-        file=sys.stderr,
-        leave=False,
-    )
-    counted = [counter[0]]
-
-    def tick():
-        bar.update(counter[0] - counted[0])
-        counted[0] = counter[0]
-
-    # The bar advances on the host callbacks' count, from a thread that polls it.
-    import threading
-
-    stop = threading.Event()
-
-    def poll():
-        while not stop.wait(0.5):
-            tick()
-
-    poller = threading.Thread(target=poll, daemon=True)
-    poller.start()
-    try:
-        states, parameters = jax.jit(jax.vmap(warm))(
-            jax.random.split(k_warm, chains), jnp.asarray(z0)
-        )
-        jax.block_until_ready(states)
-    finally:
-        stop.set()
-        poller.join()
-        bar.close()
-    t_warm = time.perf_counter() - t0
+    chains, dim = z0.shape
+    kernel = blackjax.nuts.build_kernel()
 
     def one(k, state, step_size, inverse_mass_matrix):
-        kernel = blackjax.nuts(
-            log_density,
-            step_size=step_size,
-            inverse_mass_matrix=inverse_mass_matrix,
-            max_num_doublings=MAX_DOUBLINGS,
-        )
-        return kernel.step(k, state)
+        return kernel(k, state, log_density, step_size, inverse_mass_matrix, MAX_DOUBLINGS)
 
-    step = jax.jit(jax.vmap(one))
-    step_size, imm = parameters["step_size"], parameters["inverse_mass_matrix"]
+    step = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
+    da_init, da_update, _ = dual_averaging_adaptation(target_accept)
+    da_update = jax.jit(da_update)
+
+    def bar(total, what):
+        return tqdm(
+            total=total,
+            desc=f"posterior {what} ({chains} chains)",
+            unit="step",
+            disable=not progress,
+            file=sys.stderr,
+            leave=False,
+        )
+
+    t0 = time.perf_counter()
+    states = jax.jit(jax.vmap(lambda z: blackjax.nuts.init(z, log_density)))(jnp.asarray(z0))
+    imm = np.asarray(metric, dtype=float)
+    step_size = 0.5  # in units of the metric's standard deviations
+    first = warmup // 2
+    pooled = []
+    keys = jax.random.split(k_warm, max(warmup, 1))
+    with bar(warmup, "warm-up") as progress_bar:
+        for phase, (begin, stop) in enumerate(((0, first), (first, warmup))):
+            da = da_init(step_size)
+            for i in range(begin, stop):
+                states, info = step(
+                    jax.random.split(keys[i], chains), states, jnp.exp(da.log_step_size), imm
+                )
+                accept = np.nan_to_num(np.asarray(info.acceptance_rate), nan=0.0)
+                da = da_update(da, float(np.mean(accept)))
+                if phase == 0 and i >= first // 2:
+                    pooled.append(np.asarray(states.position))
+                progress_bar.update()
+                progress_bar.set_postfix(evaluations=counter[0], refresh=False)
+            if stop > begin:
+                step_size = float(np.exp(da.log_step_size_avg))
+            if phase == 0 and len(pooled) * chains > 2 * dim:
+                imm = _pooled_metric(np.concatenate(pooled), imm)
+    t_warm = time.perf_counter() - t0
+
     positions, lps, divergent, accept = [], [], [], []
     t0 = time.perf_counter()
     keys = jax.random.split(k_draw, draws)
-    for i in tqdm(
-        range(draws),
-        desc=f"posterior draws ({chains} chains)",
-        unit="draw",
-        disable=not progress,
-        file=sys.stderr,
-        leave=False,
-    ):
-        states, info = step(jax.random.split(keys[i], chains), states, step_size, imm)
-        positions.append(np.asarray(states.position))
-        lps.append(np.asarray(states.logdensity))
-        divergent.append(np.asarray(info.is_divergent))
-        accept.append(np.asarray(info.acceptance_rate))
+    with bar(draws, "draws") as progress_bar:
+        for i in range(draws):
+            states, info = step(jax.random.split(keys[i], chains), states, step_size, imm)
+            positions.append(np.asarray(states.position))
+            lps.append(np.asarray(states.logdensity))
+            divergent.append(np.asarray(info.is_divergent))
+            accept.append(np.asarray(info.acceptance_rate))
+            progress_bar.update()
+            progress_bar.set_postfix(evaluations=counter[0], refresh=False)
     t_draw = time.perf_counter() - t0
     stack = lambda xs: np.swapaxes(np.stack(xs), 0, 1)  # noqa: E731
     return (
@@ -268,10 +266,23 @@ def _run_nuts(log_density, z0, metric, *, warmup, draws, seed, target_accept, pr
         stack(lps),
         stack(divergent),
         stack(accept),
-        np.asarray(step_size),
+        np.full(chains, step_size),
         t_warm,
         t_draw,
     )
+
+
+def _pooled_metric(samples: np.ndarray, prior_metric: np.ndarray, weight: float = 5.0):
+    """Covariance of the pooled warm-up ``samples`` ``(n, d)``, shrunk towards
+    ``prior_metric`` as if it were ``weight`` more samples (Stan shrinks towards a small
+    identity the same way); ``prior_metric`` again if the estimate is not positive definite."""
+    n = len(samples)
+    estimate = (n * np.atleast_2d(np.cov(samples, rowvar=False)) + weight * prior_metric) / (n + weight)
+    try:
+        np.linalg.cholesky(estimate)
+    except np.linalg.LinAlgError:
+        return prior_metric
+    return estimate if np.all(np.isfinite(estimate)) else prior_metric
 
 
 def split_rhat(x: np.ndarray) -> float:
@@ -417,6 +428,24 @@ def _sample(
     )
 
 
+def _at_tolerance(objective: Objective, rtol: float | None) -> Objective:
+    """The objective with solver tolerance ``rtol`` (atol ``rtol / 100``) unless ``rtol`` is
+    None, the scene sets its own, or the precision is not float64 (its default is looser)."""
+    solver = objective.scene.solver
+    if rtol is None or solver.rtol is not None or jnp.result_type(float) != jnp.float64:
+        return objective
+    if not 0 < rtol < 1:
+        raise FitError(f"rtol must be in (0, 1), got {rtol!r}")
+    scene = objective.scene.replace(solver={"rtol": rtol, "atol": solver.atol or rtol / 100})
+    return Objective(
+        scene,
+        objective.observations,
+        objective.params,
+        failure_residual=objective.failure_residual,
+        method=objective.method,
+    )
+
+
 def _program_oracle(program: ResidualProgram, p: int):
     """``U (..., p) -> (r, J)`` by the compiled program, in batches of its size."""
 
@@ -449,29 +478,33 @@ def sample_posterior(
     nu: float = 4.0,
     chains: int = 4,
     draws: int = 1000,
-    warmup: int = 1000,
+    warmup: int = WARMUP,
     seed: int = 0,
     fit_result: FitResult | None = None,
     initial: Mapping[str, float] | None = None,
     starts: int = 3,
     jitter: float = 0.5,
-    target_accept: float = 0.9,
+    target_accept: float = 0.8,
     progress: bool = True,
     method: str | None = None,
+    rtol: float | None = SAMPLING_RTOL,
 ) -> PosteriorResult:
     """Sample the posterior of ``params`` given the observations, by NUTS.
 
     **Arguments:**
     - `scene`, `observations`, `params`, `initial`, `starts`, `method`: as for `fit`, which
       runs first (unless `fit_result` is given) to place the chains.
-    - `priors`: ``{name: Prior or "loguniform:LO:HI" or "normal:MU:SD"}``; default
-      log-uniform over :data:`fitting._priors.PRIOR_RANGES`.
+    - `priors`: ``{name: Prior or "loguniform:LO:HI" or "normal:MU:SD"}``; where not given,
+      the scene's ``[priors]`` table, else log-uniform over
+      :data:`fitting._priors.PRIOR_RANGES`.
     - `likelihood`: ``"gaussian"`` or ``"student-t"`` (with `nu` degrees of freedom).
     - `chains` (>= 1; 4 or more for a trustworthy R-hat), `draws`, `warmup` (per chain).
     - `seed`: jitter of the starts and the sampler's random stream.
     - `jitter`: the chains start this many standard errors (least squares) from the optimum.
     - `target_accept`: the step-size adaptation's target acceptance rate.
     - `progress`: progress bars on stderr.
+    - `rtol`: solver tolerance of the sampler's evaluations (float64; atol ``rtol / 100``),
+      where the scene leaves its own unset; None: the scene's (the fit's) tolerance.
 
     **Returns:** a `PosteriorResult`; check ``converged`` (R-hat, divergences).
 
@@ -486,7 +519,7 @@ def sample_posterior(
     for label, value, least in (("chains", chains, 1), ("draws", draws, 4), ("warmup", warmup, 1)):
         if not (isinstance(value, int) and value >= least):
             raise FitError(f"{label} must be an integer >= {least}, got {value!r}")
-    prior_map = priors_for(names, priors)
+    prior_map = priors_for(names, priors, scene.priors)
     if fit_result is None:
         fit_result = fit(
             scene,
@@ -507,7 +540,7 @@ def sample_posterior(
             raise FitError(
                 f"the least-squares {n} = {v:.4g} lies outside its prior {prior_map[n].describe()}"
             )
-    program = ResidualProgram(objective, chains)
+    program = ResidualProgram(_at_tolerance(objective, rtol), chains)
     t_compile = program.compile(status=progress)
     dpdu = dphys_du(names, theta)
     cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)

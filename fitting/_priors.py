@@ -29,6 +29,7 @@ PRIOR_RANGES = {
     "f0": (1e-1, 1e5),  # N/m
     "friction": (1e-3, 1.5),
     "K": (1e8, 1e13),  # Pa
+    "G_star": (1e6, 1e12),  # Pa (model.tangential = "mindlin")
     "lambda": (1e-3, 1e2),
     "radius": (1e-7, 1e-1),  # m
     "density": (1e2, 3e4),  # kg/m^3
@@ -72,15 +73,16 @@ def default_prior(name: str) -> Prior:
     return Prior("loguniform", lo, hi)
 
 
-def parse_prior(name: str, text: str) -> Prior:
-    """``loguniform:LO:HI`` or ``normal:MU:SD`` -> a `Prior` of parameter ``name``.
+def parse_prior(name: str, text: str, where: str | None = None) -> Prior:
+    """``loguniform:LO:HI`` or ``normal:MU:SD`` -> a `Prior` of parameter ``name``
+    (``where``: how an error names it; default "prior of NAME").
 
     Raises:
         FitError: a malformed specification (the message names the parameter and the rule).
     """
     parts = str(text).split(":")
     kind = parts[0].strip().lower()
-    where = f"prior of {name}"
+    where = where or f"prior of {name}"
     if kind not in PRIOR_KINDS or len(parts) != 3:
         raise FitError(f"{where}: expected loguniform:LO:HI or normal:MU:SD, got {text!r}")
     try:
@@ -96,12 +98,19 @@ def parse_prior(name: str, text: str) -> Prior:
     return Prior(kind, a, b)
 
 
-def priors_for(names: Sequence[str], given: Mapping[str, object] | None) -> dict[str, Prior]:
-    """The prior of every fitted name: ``given`` (a `Prior` or its text) or the default.
+def priors_for(
+    names: Sequence[str],
+    given: Mapping[str, object] | None,
+    scene_priors: Sequence[tuple[str, str]] = (),
+) -> dict[str, Prior]:
+    """The prior of every fitted name: ``given`` (a `Prior` or its text), else the scene's
+    ``[priors]`` entry (``scene.priors``; entries of names not fitted are ignored, so one scene
+    serves several fits), else the default.
 
     Raises:
-        FitError: a prior for a name that is not fitted, or a malformed one.
+        FitError: a prior given for a name that is not fitted, or a malformed one.
     """
+    from_scene = dict(scene_priors)
     given = dict(given or {})
     for name in given:
         if name not in names:
@@ -109,6 +118,8 @@ def priors_for(names: Sequence[str], given: Mapping[str, object] | None) -> dict
     out = {}
     for name in names:
         p = given.get(name)
+        if p is None and name in from_scene:
+            p = parse_prior(name, from_scene[name], f"scene priors.{name}")
         out[name] = (
             default_prior(name)
             if p is None

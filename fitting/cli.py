@@ -100,7 +100,9 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom (4)")
     g.add_argument("--chains", type=int, default=4, help="number of chains (default 4)")
     g.add_argument("--samples", type=int, default=1000, help="draws per chain (default 1000)")
-    g.add_argument("--warmup", type=int, default=1000, help="warm-up steps per chain (1000)")
+    g.add_argument(
+        "--warmup", type=int, default=300, help="warm-up steps per chain (default 300)"
+    )
     g.add_argument("--draws", metavar="FILE.nc", help="write the draws (ArviZ InferenceData)")
     g.add_argument("--corner", metavar="FILE.png", help="corner plot of the draws")
     g.add_argument(
@@ -211,6 +213,10 @@ def cmd_fit(args) -> int:
 
         import_arviz()
     scene = jaximpact.load_scene(scene_path)
+    if args.posterior:  # a bad prior in the scene's [priors] must not cost the fit either
+        from ._priors import priors_for
+
+        priors_for(names, priors, scene.priors)
     # Outputs are checked before the fit: a typo in -o must not cost the computation.
     for path, what in (
         (args.output, "fit JSON"),

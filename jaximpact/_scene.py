@@ -222,7 +222,8 @@ class Solver(eqx.Module):
 
 
 class Scene(eqx.Module):
-    """A complete simulation set-up: ``particle``, ``contact``, ``model``, ``impact``, ``solver``.
+    """A complete simulation set-up: ``particle``, ``contact``, ``model``, ``impact``, ``solver``
+    (and ``priors`` for a Bayesian fit, which the simulation ignores).
 
     Replace parts with ``eqx.tree_at`` or :meth:`replace`, e.g.
     ``scene.replace(contact={"f0": 0.0})``.
@@ -235,6 +236,9 @@ class Scene(eqx.Module):
     model: Model = eqx.field(default_factory=Model)
     impact: Impact = eqx.field(default_factory=lambda: Impact(speed=1.0))
     solver: Solver = eqx.field(default_factory=Solver)
+    # ((name, "loguniform:LO:HI" | "normal:MU:SD"), ...): the scene file's [priors], read by
+    # `fitting.sample_posterior`; the simulation ignores them.
+    priors: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
 
     def __check_init__(self):
         if self.model.tangential == "mindlin":

@@ -49,6 +49,11 @@ ALLOWED = {
         "stiffness_limit",
     },
 }
+# [priors]: a Bayesian prior per parameter that `fitting` may sample (`fitting.sample_posterior`,
+# `jaximpact fit --posterior`), as text "loguniform:LO:HI" or "normal:MU:SD" (SI units); the
+# simulator ignores them. The spec itself is checked by `fitting` (it names the scene key).
+PRIOR_NAMES = {"C_A", "C_H", "f0", "friction", "K", "G_star", "lambda", "radius", "density"}
+ALLOWED["priors"] = PRIOR_NAMES
 REQUIRED_SECTIONS = ("particle", "contact")
 
 
@@ -245,4 +250,19 @@ def scene_from_dict(data: dict) -> Scene:
     text_keys = ("method", "max_steps", "outputs")
     solver_kwargs = {k: (v if k in text_keys else number("solver", k)) for k, v in s.items()}
     solver = Solver(**solver_kwargs)
-    return Scene(particle=particle, contact=contact, model=model, impact=impact, solver=solver)
+    priors = []
+    for name, spec in sorted(data.get("priors", {}).items()):
+        if not isinstance(spec, str):
+            raise SceneError(
+                f'priors.{name} must be a string like "loguniform:LO:HI" or "normal:MU:SD", '
+                f"got {spec!r}"
+            )
+        priors.append((name, spec))
+    return Scene(
+        particle=particle,
+        contact=contact,
+        model=model,
+        impact=impact,
+        solver=solver,
+        priors=tuple(priors),
+    )

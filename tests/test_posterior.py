@@ -237,6 +237,51 @@ def test_prior_specs_and_bad_input():
         priors_for(NAMES, {"K": "loguniform:1:2"})
 
 
+def test_scene_priors_are_read_and_overridden(tmp_path):
+    """A scene file's [priors] table gives the prior of a fitted name unless the caller gives
+    one; entries of names not fitted are ignored; a bad entry names the scene key."""
+    text = jaximpact.scene_path("table1").read_text()
+    path = tmp_path / "s.toml"
+    path.write_text(text + '\n[priors]\nf0 = "normal:300:50"\nK = "loguniform:1e9:1e12"\n')
+    scene = jaximpact.load_scene(path)
+    assert dict(scene.priors) == {"f0": "normal:300:50", "K": "loguniform:1e9:1e12"}
+    got = priors_for(NAMES, None, scene.priors)
+    assert got["f0"] == Prior("normal", 300.0, 50.0)
+    assert got["C_A"] == fitting._priors.default_prior("C_A")
+    assert priors_for(NAMES, {"f0": "normal:1:2"}, scene.priors)["f0"] == Prior("normal", 1, 2)
+    with pytest.raises(fitting.FitError, match="scene priors.f0"):
+        priors_for(NAMES, None, (("f0", "normal:300"),))
+    # the simulator ignores the priors: same program, same numbers
+    base = jaximpact.simulate(jaximpact.load_scene("table1"), 1.0, 30.0, 0.0)
+    assert float(jaximpact.simulate(scene, 1.0, 30.0, 0.0).cor_n) == float(base.cor_n)
+    for bad, field in (
+        ('[priors]\nf0 = 3.0\n', "priors.f0 must be a string"),
+        ('[priors]\nzeta_A = "normal:1:1"\n', "priors.zeta_A"),
+    ):
+        path.write_text(text + "\n" + bad)
+        with pytest.raises(jaximpact.SceneError, match=field):
+            jaximpact.load_scene(path)
+
+
+def test_every_fittable_name_has_a_default_prior():
+    for name in fitting.FITTABLE:
+        prior = fitting._priors.default_prior(name)
+        assert 0 < prior.a < prior.b
+
+
+def test_cli_bad_scene_prior_exit_2_before_fitting(tmp_path, capsys):
+    scene = tmp_path / "s.toml"
+    scene.write_text(
+        jaximpact.scene_path("table1").read_text() + '\n[priors]\nf0 = "loguniform:5:1"\n'
+    )
+    data = tmp_path / "d.csv"
+    data.write_text("speed,angle_deg,observable,value\n1.0,0.0,cor_n,0.5\n")
+    code = cli_main(["fit", str(scene), str(data), "--params", "f0", "--posterior"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "scene priors.f0" in err and "Traceback" not in err
+
+
 @pytest.mark.parametrize(
     "extra, field",
     [
