@@ -484,7 +484,7 @@ def sample_posterior(
     initial: Mapping[str, float] | None = None,
     starts: int = 3,
     jitter: float = 0.5,
-    target_accept: float = 0.8,
+    target_accept: float = 0.9,
     progress: bool = True,
     method: str | None = None,
     rtol: float | None = SAMPLING_RTOL,
