@@ -57,6 +57,8 @@ class DesignResult:
             ``ln p`` (zero for dropped ones).
         ridge: the ridge added to the information matrix.
         sigma: ``(n_candidates, k)`` the noise assumed for each candidate's observables.
+        draws: number of parameter draws the information was averaged over (0: a point
+            design at the scene's values); ``information`` is then the mean over them.
     """
 
     params: tuple[str, ...]
@@ -71,14 +73,20 @@ class DesignResult:
     information: np.ndarray
     ridge: float
     sigma: np.ndarray
+    draws: int = 0
 
     def message(self) -> str:
+        where = (
+            f" (mean log-det over {self.draws} posterior draws)"
+            if self.draws
+            else " (at the scene's values)"
+        )
         return (
             f"design: {len(self.chosen)} of {len(self.candidates)} candidate impacts chosen "
-            f"for {', '.join(self.params)} from {', '.join(self.observables)}; dropped "
+            f"for {', '.join(self.params)} from {', '.join(self.observables)}{where}; dropped "
             f"{len(self.dropped_captured)} captured at the scene's values and "
             f"{len(self.dropped_near_capture)} near the capture threshold (outcome changes "
-            "within the parameter perturbation)"
+            "within the parameter perturbation" + (" or at a draw)" if self.draws else ")")
         )
 
 
@@ -93,27 +101,32 @@ def log_det_information(information: np.ndarray, subset, ridge: float = 0.0) -> 
 def greedy_d_optimal(info: np.ndarray, usable, n: int, *, ridge: float = 1e-6):
     """Greedy D-optimal choice of ``n`` of the ``usable`` candidates, each once.
 
-    ``info``: ``(c, p, p)`` information of each candidate. The ridge is ``ridge`` times the
-    mean diagonal of the usable candidates' information. Returns ``(chosen, gain, log_det,
-    ridge_abs)``: indices in the order chosen, the log-det gain of each pick and the log-det
-    after it (with the ridge), and the absolute ridge."""
+    ``info``: ``(c, p, p)`` information of each candidate, or ``(k, c, p, p)`` at ``k``
+    parameter draws: then each pick maximizes the mean over the draws of the log-determinant
+    (pseudo-Bayesian D-optimality; Chaloner & Verdinelli 1995). The ridge is ``ridge`` times
+    the mean diagonal of the usable candidates' information. Returns ``(chosen, gain,
+    log_det, ridge_abs)``: indices in the order chosen, the (mean) log-det gain of each pick
+    and the (mean) log-det after it (with the ridge), and the absolute ridge."""
     usable = np.asarray(usable, dtype=int)
+    info = np.asarray(info)
+    info = info[None] if info.ndim == 3 else info
     p = info.shape[-1]
-    ridge_abs = ridge * float(np.mean(np.trace(info[usable], axis1=1, axis2=2))) / p
-    m = ridge_abs * np.eye(p)
-    current = float(np.linalg.slogdet(m)[1])
-    available = np.zeros(len(info), bool)
+    ridge_abs = ridge * float(np.mean(np.trace(info[:, usable], axis1=2, axis2=3))) / p
+    m = ridge_abs * np.broadcast_to(np.eye(p), (len(info), p, p))
+    current = float(np.mean(np.linalg.slogdet(m)[1]))
+    available = np.zeros(info.shape[1], bool)
     available[usable] = True
     chosen, gains, logdets = [], [], []
     for _ in range(n):
-        sign, trial = np.linalg.slogdet(m[None] + info)
-        trial = np.where((sign > 0) & available, trial, -np.inf)
+        sign, trial = np.linalg.slogdet(m[:, None] + info)  # (k, c)
+        trial = np.where(np.all(sign > 0, axis=0), np.mean(trial, axis=0), -np.inf)
+        trial = np.where(available, trial, -np.inf)
         best = int(np.argmax(trial))
         chosen.append(best)
         gains.append(float(trial[best] - current))
         current = float(trial[best])
         logdets.append(current)
-        m = m + info[best]
+        m = m + info[:, best]
         available[best] = False
     return np.array(chosen), np.array(gains), np.array(logdets), ridge_abs
 
@@ -150,6 +163,8 @@ def design(
     ridge: float = 1e-6,
     perturbation: float = 0.1,
     method: str | None = None,
+    draws=None,
+    max_draws: int = 20,
 ) -> DesignResult:
     """Choose ``n`` impacts from ``candidates`` that most reduce the parameters' uncertainty.
 
@@ -163,6 +178,12 @@ def design(
     - `values`: parameter values overriding the scene's.
     - `ridge`: relative ridge (see the module docstring).
     - `perturbation`: relative parameter change for the near-capture test.
+    - `draws`: parameter draws instead of one value: an array ``(s, p)`` (physical values in
+      `params` order) or a `PosteriorResult` of the same parameters. The information is
+      computed at `max_draws` of them (evenly spaced) and each pick maximizes its mean
+      log-determinant over them (pseudo-Bayesian D-optimal); the near-capture test runs at
+      the draws' median (unless `values` are given), and a candidate captured at any draw
+      is dropped as near the threshold.
 
     **Raises:** `FitError` for bad names, options or too few usable candidates.
     """
@@ -201,6 +222,9 @@ def design(
 
     from ._objective import set_parameters
 
+    at_draws = _draw_subset(draws, names, max_draws)
+    if at_draws is not None and not values:
+        values = dict(zip(names, np.median(at_draws, axis=0).tolist(), strict=True))
     scene = set_parameters(scene, dict(values or {}))
     theta = np.array([get_parameter(scene, nm) for nm in names])
     obs = _candidate_observations(candidates, observables, source or "candidates")
@@ -223,21 +247,27 @@ def design(
             _, _, st = program(u[None], value=0.0, scale=scale)
             stable &= (st[0] == jaximpact.Status.REBOUND) == rebound
     n_cand = len(candidates)
+    jacs = [jac]
+    for th in [] if at_draws is None else at_draws:  # the information at every draw
+        _, jac_s, st = program(to_unbounded(names, th)[None], value=0.0, scale=scale)
+        jacs.append(jac_s[0] * (th / dphys_du(names, th))[None, :])
+        stable &= st[0] == jaximpact.Status.REBOUND
+    if at_draws is not None:
+        jacs = jacs[1:]
+    jacs = np.stack(jacs)  # (k, n_cand * observables, p)
     dropped_captured = np.flatnonzero(~rebound)
     dropped_near = np.flatnonzero(rebound & ~stable)
     usable = np.flatnonzero(
-        rebound
-        & stable
-        & np.all(np.isfinite(jac.reshape(n_cand, len(observables), -1)), axis=(1, 2))
+        rebound & stable & np.all(np.isfinite(jacs.reshape(len(jacs), n_cand, -1)), axis=(0, 2))
     )
     if n > len(usable):
         raise FitError(
             f"n = {n} but only {len(usable)} usable candidates ({len(dropped_captured)} "
             f"captured, {len(dropped_near)} near the capture threshold dropped)"
         )
-    per = jac.reshape(n_cand, len(observables), len(names))
-    info = np.einsum("ckp,ckq->cpq", per, per)
-    info[~np.isin(np.arange(n_cand), usable)] = 0.0
+    per = jacs.reshape(len(jacs), n_cand, len(observables), len(names))
+    info = np.einsum("sckp,sckq->scpq", per, per)
+    info[:, ~np.isin(np.arange(n_cand), usable)] = 0.0
     chosen, gains, logdets, ridge_abs = greedy_d_optimal(info, usable, n, ridge=ridge)
     return DesignResult(
         params=names,
@@ -249,10 +279,31 @@ def design(
         chosen=chosen,
         gain=gains,
         log_det=logdets,
-        information=info,
+        information=info.mean(axis=0),
         ridge=ridge_abs,
         sigma=scale.reshape(n_cand, len(observables)),
+        draws=0 if at_draws is None else len(at_draws),
     )
+
+
+def _draw_subset(draws, names, max_draws: int):
+    """``max_draws`` evenly spaced rows ``(k, p)`` of the draws (an array or a
+    `PosteriorResult`), or None without draws."""
+    if draws is None:
+        return None
+    if hasattr(draws, "draws") and hasattr(draws, "params"):  # a PosteriorResult
+        if tuple(draws.params) != tuple(names):
+            raise FitError(f"draws are of {tuple(draws.params)}, not of {tuple(names)}")
+        draws = np.asarray(draws.draws).reshape(-1, len(names))
+    draws = np.asarray(draws, dtype=float)
+    if draws.ndim != 2 or draws.shape[1] != len(names) or len(draws) == 0:
+        raise FitError(f"draws must be an array (draws, {len(names)}) for {', '.join(names)}")
+    if not np.all(np.isfinite(draws)):
+        raise FitError("draws must be finite")
+    if not (isinstance(max_draws, int | np.integer) and max_draws >= 1):
+        raise FitError(f"max_draws must be an integer >= 1, got {max_draws!r}")
+    pick = np.linspace(0, len(draws) - 1, min(max_draws, len(draws))).round().astype(int)
+    return draws[pick]
 
 
 def write_design(path, result: DesignResult) -> None:

@@ -277,7 +277,9 @@ def _pooled_metric(samples: np.ndarray, prior_metric: np.ndarray, weight: float 
     ``prior_metric`` as if it were ``weight`` more samples (Stan shrinks towards a small
     identity the same way); ``prior_metric`` again if the estimate is not positive definite."""
     n = len(samples)
-    estimate = (n * np.atleast_2d(np.cov(samples, rowvar=False)) + weight * prior_metric) / (n + weight)
+    estimate = (n * np.atleast_2d(np.cov(samples, rowvar=False)) + weight * prior_metric) / (
+        n + weight
+    )
     try:
         np.linalg.cholesky(estimate)
     except np.linalg.LinAlgError:

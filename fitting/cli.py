@@ -100,9 +100,7 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom (4)")
     g.add_argument("--chains", type=int, default=4, help="number of chains (default 4)")
     g.add_argument("--samples", type=int, default=1000, help="draws per chain (default 1000)")
-    g.add_argument(
-        "--warmup", type=int, default=300, help="warm-up steps per chain (default 300)"
-    )
+    g.add_argument("--warmup", type=int, default=300, help="warm-up steps per chain (default 300)")
     g.add_argument("--draws", metavar="FILE.nc", help="write the draws (ArviZ InferenceData)")
     g.add_argument("--corner", metavar="FILE.png", help="corner plot of the draws")
     g.add_argument(
@@ -324,7 +322,8 @@ _DESIGN_DESCRIPTION = """\
 Choose N impacts from candidate rows (an impacts CSV: speed, angle_deg[, omega0]) that most
 reduce the uncertainty of the named parameters: greedy D-optimal on the Fisher information
 J^T S^-1 J of the observables to be measured (J: forward-mode derivatives with respect to the
-log-parameters at the scene's values). Default noise: 1 % of each observable's natural scale
+log-parameters at the scene's values, or averaged in log-det over posterior draws with
+--draws DRAWS.nc from fit --posterior). Default noise: 1 % of each observable's natural scale
 (cor_n, cor_t: 0.01; vt_out: 1 % of the speed; omega_out: 1 % of speed/radius; rebound angle:
 1 degree); --sigma sets it per observable. Candidates the model captures, or whose outcome
 (rebound or capture) changes when a parameter moves by 10 %, are dropped (counted in the
@@ -347,6 +346,13 @@ def add_design_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, required=True, help="impacts to choose")
     p.add_argument("--observables", nargs="+", default=["cor_n"], metavar="NAME")
     p.add_argument("--sigma", nargs="+", default=[], metavar="OBSERVABLE=SIGMA")
+    p.add_argument(
+        "--draws",
+        metavar="DRAWS.nc",
+        help="posterior draws (written by fit --posterior --draws): design for the mean "
+        "log-det over them instead of at the scene's values",
+    )
+    p.add_argument("--max-draws", type=int, default=20, help="draws used (default 20)")
     p.add_argument("-o", "--output", required=True, metavar="DESIGN.csv")
     p.set_defaults(func=cmd_design)
     return p
@@ -376,11 +382,21 @@ def cmd_design(args) -> int:
             raise FitError(f"--sigma expects OBSERVABLE=SIGMA, got {item!r}") from None
     if args.n < 1:
         raise FitError(f"--n must be an integer >= 1, got {args.n}")
+    if args.max_draws < 1:
+        raise FitError(f"--max-draws must be an integer >= 1, got {args.max_draws}")
     check_readable(args.candidates, "candidates file")
+    draws = _read_draws(args.draws, names) if args.draws else None
     prepare_output(args.output, "design CSV")
     scene = jaximpact.load_scene(args.scene)
     result = design(
-        scene, args.candidates, names, args.n, observables=args.observables, sigma=sigma
+        scene,
+        args.candidates,
+        names,
+        args.n,
+        observables=args.observables,
+        sigma=sigma,
+        draws=draws,
+        max_draws=args.max_draws,
     )
     print(result.message())
     for k, i in enumerate(result.chosen):
@@ -395,3 +411,24 @@ def cmd_design(args) -> int:
         raise write_failed(args.output, err) from None
     print(f"wrote {args.output}")
     return 0
+
+
+def _read_draws(path, names):
+    """``(draws, p)`` parameter draws from an ArviZ netCDF file (``fit --draws``)."""
+    from jaximpact._paths import check_readable
+
+    from ._objective import FitError
+    from ._posterior_report import import_arviz
+
+    check_readable(path, "draws file")
+    az = import_arviz()
+    try:
+        posterior = az.from_netcdf(str(path)).posterior
+    except Exception as err:  # not netCDF, or no posterior group
+        raise FitError(f"{path}: not a draws file with a posterior group ({err})") from None
+    missing = [n for n in names if n not in posterior]
+    if missing:
+        raise FitError(f"{path}: no draws of {', '.join(missing)} (it has {list(posterior)})")
+    import numpy as np
+
+    return np.stack([np.asarray(posterior[n].values).reshape(-1) for n in names], axis=1)

@@ -227,6 +227,35 @@ def test_greedy_design_finds_the_best_pair_and_beats_random():
     assert designed - np.median(random) > math.log(5)
 
 
+def test_greedy_design_over_draws_maximizes_the_mean_log_det():
+    """With the information at several parameter draws, each pick maximizes the mean log-det
+    over the draws; identical draws give the point design."""
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((2, 30, 3))  # rank-one candidates at two draws
+    info = np.einsum("sci,scj->scij", a, a)
+    point = _design.greedy_d_optimal(info[0], np.arange(30), 4)
+    same = _design.greedy_d_optimal(np.stack([info[0]] * 3), np.arange(30), 4)
+    assert list(same[0]) == list(point[0])
+    np.testing.assert_allclose(same[2], point[2], rtol=1e-12)
+    chosen, gains, log_det, ridge = _design.greedy_d_optimal(info, np.arange(30), 4)
+    m = ridge * np.eye(3)
+    for k, pick in enumerate(chosen):  # each pick is the best given the earlier ones
+        trial = [
+            np.mean(
+                [
+                    np.linalg.slogdet(m + sum(info[s, j] for j in [*chosen[:k], c]))[1]
+                    for s in range(2)
+                ]
+            )
+            if c not in chosen[:k]
+            else -np.inf
+            for c in range(30)
+        ]
+        assert pick == int(np.argmax(trial))
+        assert log_det[k] == pytest.approx(max(trial), rel=1e-10)
+    assert np.all(gains > 0)
+
+
 def test_prior_specs_and_bad_input():
     assert parse_prior("f0", "loguniform:10:1e4") == Prior("loguniform", 10.0, 1e4)
     assert parse_prior("C_A", "normal:0.8:0.2") == Prior("normal", 0.8, 0.2)
@@ -255,7 +284,7 @@ def test_scene_priors_are_read_and_overridden(tmp_path):
     base = jaximpact.simulate(jaximpact.load_scene("table1"), 1.0, 30.0, 0.0)
     assert float(jaximpact.simulate(scene, 1.0, 30.0, 0.0).cor_n) == float(base.cor_n)
     for bad, field in (
-        ('[priors]\nf0 = 3.0\n', "priors.f0 must be a string"),
+        ("[priors]\nf0 = 3.0\n", "priors.f0 must be a string"),
         ('[priors]\nzeta_A = "normal:1:1"\n', "priors.zeta_A"),
     ):
         path.write_text(text + "\n" + bad)
@@ -332,6 +361,26 @@ def test_cli_design_bad_input_exit_2(extra, field, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2
     assert field in err and "Traceback" not in err
+
+
+def test_cli_design_bad_draws_exit_2(tmp_path, capsys):
+    az = pytest.importorskip("arviz")
+    cand = tmp_path / "cand.csv"
+    cand.write_text("speed,angle_deg\n1.0,0.0\n2.0,30.0\n")
+    draws = tmp_path / "draws.nc"
+    az.from_dict(posterior={"C_A": np.ones((2, 5)), "f0": np.ones((2, 5))}).to_netcdf(str(draws))
+    base = ["design", "--params", *NAMES, "--candidates", str(cand), "--n", "1"]
+    for extra, field in (
+        (["--draws", str(draws)], "no draws of C_H"),
+        (["--draws", str(tmp_path / "none.nc")], "none.nc"),
+        (["--draws", str(cand)], "not a draws file"),
+        (["--max-draws", "0"], "--max-draws"),
+    ):
+        code = cli_main([*base, "-o", str(tmp_path / "d.csv"), *extra])
+        err = capsys.readouterr().err
+        assert code == 2, extra
+        assert field in err and "Traceback" not in err
+    assert not (tmp_path / "d.csv").exists()
 
 
 def test_cli_design_missing_candidates_exit_2(tmp_path, capsys):
@@ -416,6 +465,30 @@ def test_design_on_table1_beats_random_and_drops_captures(tmp_path):
     lines = [x for x in out.read_text().splitlines() if not x.startswith("#")]
     assert lines[0] == "order,speed,angle_deg,omega0,gain_logdet,log_det"
     assert len(lines) == 7
+    # Over posterior draws: draws all at the design's values give the point design; spread
+    # draws (C_A and f0 +-20 % along their ridge) give a design over all of them, from the CLI.
+    theta = np.array([TRUTH[n] for n in NAMES])
+    same = fitting.design(scene, cand, NAMES, 6, sigma={"cor_n": 0.003}, draws=[theta] * 3)
+    assert same.draws == 3 and list(same.chosen) == list(result.chosen)
+    spread = theta * np.array([[1.0, 1.0, 1.0], [1.2, 1.0, 0.8], [0.8, 1.0, 1.2]])
+    az = pytest.importorskip("arviz")
+    draws_file = tmp_path / "draws.nc"
+    az.from_dict(posterior={n: spread[None, :, i] for i, n in enumerate(NAMES)}).to_netcdf(
+        str(draws_file)
+    )
+    out2 = tmp_path / "design2.csv"
+    args = ["design", "table1", "--params", *NAMES, "--candidates", str(cand), "--n", "6"]
+    code = cli_main([*args, "--sigma", "cor_n=0.003", "--draws", str(draws_file), "-o", str(out2)])
+    assert code == 0
+    over = fitting.design(scene, cand, NAMES, 6, sigma={"cor_n": 0.003}, draws=spread)
+    assert over.draws == 3
+    # a candidate captured at any draw is not chosen
+    assert len(over.dropped_near_capture) >= len(result.dropped_near_capture)
+    assert not set(over.chosen) & set(over.dropped_near_capture)
+    picked = [x.split(",")[1:3] for x in out2.read_text().splitlines()[2:]]
+    assert [[float(v) for v in row] for row in picked] == [
+        [float(over.candidates.speed[i]), float(over.candidates.angle_deg[i])] for i in over.chosen
+    ]
 
 
 @pytest.mark.slow  # a fit, a short posterior run and a profile through the CLI
