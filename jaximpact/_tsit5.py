@@ -8,13 +8,6 @@ factor 6 with what else was in the batch (issue 10). Here every sum is written o
 term, in a fixed order, with elementwise operations only, so a lane's arithmetic is the same
 whatever the batch (checked in tests/test_derivatives.py: alone, batched, shuffled, sharded).
 
-The sums run per state variable, on arrays of one value per lane (issue 12: 2.3x cheaper per
-lane-step than flattening the state into one array per stage, whose concatenations and
-slices cost more than the arithmetic). XLA's CPU code then vectorizes along the lanes, and
-lanes left over after the last full SIMD vector take a scalar path whose rounding can differ
-(measured: one lane of 5 or 13 moved, none of any multiple of 4): ``simulate`` therefore pads
-every batch to a multiple of :func:`lane_group` lanes per device and chunk.
-
 The method is Tsit5 itself (same tableau, same embedded error estimate, same 4th-order dense
 output), so accuracy and step counts match ``diffrax.Tsit5``. Only ODE terms are supported.
 """
@@ -23,8 +16,10 @@ from collections.abc import Callable
 from typing import ClassVar
 
 import diffrax
+import jax
 import jax.numpy as jnp
 import jax.tree_util as jtu
+from jax.flatten_util import ravel_pytree
 
 _TABLEAU = diffrax.Tsit5.tableau
 
@@ -42,14 +37,8 @@ _DENSE = (
 )
 
 
-def lane_group(dtype) -> int:
-    """Lanes per device and chunk are a multiple of this (a 512-bit vector of ``dtype``), so
-    every lane takes the vectorized path (see the module docstring)."""
-    return 64 // jnp.dtype(dtype).itemsize
-
-
 def _combine(weights, ks):
-    """``sum_i weights[i] * ks[i]``, one term at a time, in index order (arrays).
+    """``sum_i weights[i] * ks[i]``, one term at a time, in index order (flat state arrays).
 
     Zero weights are skipped (they are exact zeros of the tableau, known in Python)."""
     acc = None
@@ -66,7 +55,7 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
     t0: float
     t1: float
     y0: dict
-    k: tuple  # the 7 stages, each a state pytree
+    k: jax.Array  # the 7 stages of the flattened state, (7, states)
 
     def __init__(self, *, t0, t1, y0, y1, k):
         del y1  # diffrax passes it; the dense output does not need it
@@ -82,13 +71,15 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
         weights = [
             theta * (r1 + theta * (r2 + theta * (r3 + theta * r4))) for r1, r2, r3, r4 in _DENSE
         ]
-        return jtu.tree_map(lambda y, *k: y + h * _combine(weights, list(k)), self.y0, *self.k)
+        y0, unravel = ravel_pytree(self.y0)
+        return unravel(y0 + h * _combine(weights, [self.k[i] for i in range(7)]))
 
 
 class LaneTsit5(diffrax.AbstractAdaptiveSolver):
     """``diffrax.Tsit5`` with batch-independent arithmetic (see the module docstring).
 
-    The stage sums run per state variable (see the module docstring).
+    The state is flattened into one array for the stage sums: one operation per stage term
+    instead of one per state and term keeps the compiled program small.
     """
 
     term_structure: ClassVar = diffrax.AbstractTerm
@@ -101,22 +92,21 @@ class LaneTsit5(diffrax.AbstractAdaptiveSolver):
         return 5
 
     def init(self, terms, t0, t1, y0, args):
-        return terms.vf(t0, y0, args)  # first stage, reused (FSAL)
+        return ravel_pytree(terms.vf(t0, y0, args))[0]  # first stage, reused (FSAL)
 
     def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
         # made_jump is never true here: simulate passes no jump times or discontinuities.
         del made_jump
         h = t1 - t0
+        flat0, unravel = ravel_pytree(y0)
         ks = [solver_state]
         for c, a_row in zip(_TABLEAU.c, _TABLEAU.a_lower, strict=True):
-            weights = [float(a) for a in a_row]
-            stage = jtu.tree_map(lambda y, *k, w=weights: y + h * _combine(w, list(k)), y0, *ks)
-            ks.append(terms.vf(t0 + float(c) * h, stage, args))
+            stage = flat0 + h * _combine([float(a) for a in a_row], ks)
+            ks.append(ravel_pytree(terms.vf(t0 + float(c) * h, unravel(stage), args))[0])
         # Tsit5's last stage is evaluated at y1 itself (its a-row is b_sol).
-        y1 = stage
-        b_error = [float(b) for b in _TABLEAU.b_error]
-        y_error = jtu.tree_map(lambda *k: h * _combine(b_error, list(k)), *ks)
-        dense_info = dict(y0=y0, y1=y1, k=tuple(ks))
+        y1 = unravel(stage)
+        y_error = unravel(h * _combine([float(b) for b in _TABLEAU.b_error], ks))
+        dense_info = dict(y0=y0, y1=y1, k=jnp.stack(ks))
         return y1, y_error, dense_info, ks[-1], diffrax.RESULTS.successful
 
     def func(self, terms, t0, y0, args):

@@ -743,7 +743,6 @@ def _runner(terms, cfg, devices):
 
     from ._results import OUTPUT_FIELDS
     from ._simulate import _default_chunk, _simulate_flat
-    from ._tsit5 import lane_group
 
     shards = len(devices)
     chunk = _default_chunk(shards)
@@ -755,9 +754,8 @@ def _runner(terms, cfg, devices):
         def sweep_chunk(params, speed, angle_deg, omega0):
             inputs = (params, speed, angle_deg, omega0)
             size = speed.shape[0]
-            # as simulate: whole lane groups per device (every lane vectorized alike)
-            pad = -size % (shards * lane_group(speed.dtype))
-            inputs = jax.tree_util.tree_map(lambda x: jnp.pad(x, (0, pad), mode="edge"), inputs)
+            if size == 1:  # as simulate: a batch of one compiles to other arithmetic
+                inputs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]), inputs)
             result = _simulate_flat(terms, cfg, *inputs, chunk=chunk, shards=shards, loop=_LOOP)
             values = jnp.stack([getattr(result, k)[:size] for k in OUTPUT_FIELDS])
             return result.status[:size], values
