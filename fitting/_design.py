@@ -234,27 +234,33 @@ def design(
     scale = default_scales(obs.observable, obs.speed, radius)
     for o, s in sigma.items():
         scale = np.where(obs.observable == o, s, scale)
-    u0 = to_unbounded(names, theta)
-    _, jac, status = program(u0[None], value=0.0, scale=scale)
-    # Derivatives in ln p (the solver variable u is ln p except for bounded parameters).
-    jac = jac[0] * (theta / dphys_du(names, theta))[None, :]
-    rebound = status[0] == jaximpact.Status.REBOUND
+    rebound_code = jaximpact.Status.REBOUND
+
+    def at(th):
+        """Jacobian in ln p (the solver variable u is ln p except for bounded parameters) and
+        status of every candidate at parameter values ``th``."""
+        _, jac, status = program(to_unbounded(names, th)[None], value=0.0, scale=scale)
+        return jac[0] * (th / dphys_du(names, th))[None, :], status[0]
+
+    jac, status = at(theta)
+    rebound = status == rebound_code
     stable = rebound.copy()
+    u0 = to_unbounded(names, theta)
     for i in range(len(names)):
         for sign in (-1.0, 1.0):
             u = u0.copy()
             u[i] = to_unbounded([names[i]], [theta[i] * (1 + sign * perturbation)])[0]
             _, _, st = program(u[None], value=0.0, scale=scale)
-            stable &= (st[0] == jaximpact.Status.REBOUND) == rebound
+            stable &= (st[0] == rebound_code) == rebound
     n_cand = len(candidates)
-    jacs = [jac]
-    for th in [] if at_draws is None else at_draws:  # the information at every draw
-        _, jac_s, st = program(to_unbounded(names, th)[None], value=0.0, scale=scale)
-        jacs.append(jac_s[0] * (th / dphys_du(names, th))[None, :])
-        stable &= st[0] == jaximpact.Status.REBOUND
-    if at_draws is not None:
-        jacs = jacs[1:]
-    jacs = np.stack(jacs)  # (k, n_cand * observables, p)
+    if at_draws is None:
+        jacs = jac[None]
+    else:  # the information at every draw; captured at any draw: near the threshold
+        per_draw = [at(th) for th in at_draws]
+        jacs = np.stack([j for j, _ in per_draw])
+        for _, st in per_draw:
+            stable &= st == rebound_code
+    # jacs: (draws or 1, n_cand * observables, p)
     dropped_captured = np.flatnonzero(~rebound)
     dropped_near = np.flatnonzero(rebound & ~stable)
     usable = np.flatnonzero(

@@ -132,6 +132,27 @@ def write_draws(path, result: PosteriorResult) -> None:
         raise
 
 
+def read_draws(path, names) -> np.ndarray:
+    """``(draws, p)`` draws of ``names`` from an ArviZ netCDF file (as :func:`write_draws`
+    writes), all chains together.
+
+    Raises:
+        FitError: arviz missing, not a draws file, or no draws of a name.
+    """
+    from jaximpact._paths import check_readable
+
+    check_readable(path, "draws file")
+    az = import_arviz()
+    try:
+        posterior = az.from_netcdf(str(path)).posterior
+    except Exception as err:  # not netCDF, or no posterior group
+        raise FitError(f"{path}: not a draws file with a posterior group ({err})") from None
+    missing = [n for n in names if n not in posterior]
+    if missing:
+        raise FitError(f"{path}: no draws of {', '.join(missing)} (it has {list(posterior)})")
+    return np.stack([np.asarray(posterior[n].values).reshape(-1) for n in names], axis=1)
+
+
 def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
     """Corner plot of the draws (histograms on the diagonal, scatter below; log axes for
     positive parameters), the least-squares optimum marked."""

@@ -369,6 +369,7 @@ def cmd_design(args) -> int:
 
     from ._design import design, write_design
     from ._objective import FitError, check_names
+    from ._posterior_report import read_draws
 
     names = check_names(args.params)
     sigma = {}
@@ -385,7 +386,7 @@ def cmd_design(args) -> int:
     if args.max_draws < 1:
         raise FitError(f"--max-draws must be an integer >= 1, got {args.max_draws}")
     check_readable(args.candidates, "candidates file")
-    draws = _read_draws(args.draws, names) if args.draws else None
+    draws = read_draws(args.draws, names) if args.draws else None
     prepare_output(args.output, "design CSV")
     scene = jaximpact.load_scene(args.scene)
     result = design(
@@ -411,24 +412,3 @@ def cmd_design(args) -> int:
         raise write_failed(args.output, err) from None
     print(f"wrote {args.output}")
     return 0
-
-
-def _read_draws(path, names):
-    """``(draws, p)`` parameter draws from an ArviZ netCDF file (``fit --draws``)."""
-    from jaximpact._paths import check_readable
-
-    from ._objective import FitError
-    from ._posterior_report import import_arviz
-
-    check_readable(path, "draws file")
-    az = import_arviz()
-    try:
-        posterior = az.from_netcdf(str(path)).posterior
-    except Exception as err:  # not netCDF, or no posterior group
-        raise FitError(f"{path}: not a draws file with a posterior group ({err})") from None
-    missing = [n for n in names if n not in posterior]
-    if missing:
-        raise FitError(f"{path}: no draws of {', '.join(missing)} (it has {list(posterior)})")
-    import numpy as np
-
-    return np.stack([np.asarray(posterior[n].values).reshape(-1) for n in names], axis=1)
