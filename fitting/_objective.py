@@ -270,10 +270,16 @@ class Objective:
         """The scene with fitted values and the data's per-impact overrides in place."""
         return set_parameters(self.scene, {**self._overrides, **values})
 
-    def _simulate_impl(self, theta, adjoint=None):
+    def _simulate_impl(self, theta, adjoint=None, compact=False):
         scene = self._scene_with(dict(zip(self.params, theta, strict=True)))
         return jaximpact.simulate(
-            scene, self._speed, self._angle, self._omega0, method=self.method, adjoint=adjoint
+            scene,
+            self._speed,
+            self._angle,
+            self._omega0,
+            method=self.method,
+            adjoint=adjoint,
+            compact=compact,
         )
 
     def hertz_time(self, theta=None):

@@ -65,8 +65,11 @@ def default_slip_width(dtype, slip_width):
     return 1e-3 if jnp.finfo(dtype).bits >= 64 else 3e-3
 
 
-def make_solver(method: str, dtype):
-    """The diffrax solver for ``method`` (``auto`` must be resolved before)."""
+def make_solver(method: str, dtype, compact: bool = False):
+    """The diffrax solver for ``method`` (``auto`` must be resolved before); ``compact``: Tsit5
+    with its stages in a loop (``LaneTsit5.stage_loop``)."""
+    if method == "tsit5":
+        return LaneTsit5(stage_loop=compact)
     if method in EXPLICIT:
         return EXPLICIT[method]()
     if method == "rk4":
