@@ -270,7 +270,7 @@ class Objective:
         """The scene with fitted values and the data's per-impact overrides in place."""
         return set_parameters(self.scene, {**self._overrides, **values})
 
-    def _simulate_impl(self, theta, adjoint=None, compact=False):
+    def _simulate_impl(self, theta, adjoint=None, program="throughput"):
         scene = self._scene_with(dict(zip(self.params, theta, strict=True)))
         return jaximpact.simulate(
             scene,
@@ -279,7 +279,7 @@ class Objective:
             self._omega0,
             method=self.method,
             adjoint=adjoint,
-            compact=compact,
+            program=program,
         )
 
     def hertz_time(self, theta=None):

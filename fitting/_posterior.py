@@ -543,7 +543,7 @@ def sample_posterior(
                 f"the least-squares {n} = {v:.4g} lies outside its prior {prior_map[n].describe()}"
             )
     # Thousands of calls: the program that runs fastest, not the one that compiles fastest.
-    program = ResidualProgram(_at_tolerance(objective, rtol), chains, compact=False)
+    program = ResidualProgram(_at_tolerance(objective, rtol), chains, program="throughput")
     t_compile = program.compile(status=progress)
     dpdu = dphys_du(names, theta)
     cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)

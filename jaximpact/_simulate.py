@@ -1,6 +1,7 @@
 """``simulate``: the one public driver, and the only caller of ``diffrax.diffeqsolve``."""
 
 import dataclasses
+
 import diffrax
 import equinox as eqx
 import jax
@@ -29,6 +30,7 @@ from ._solvers import (
     make_controller,
     make_solver,
 )
+from ._tsit5 import lane_group
 from ._units import ScaledParameters, hertz_units
 
 PARAMETERS = ("radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda")
@@ -61,8 +63,8 @@ class Integration(eqx.Module):
     atol: float = eqx.field(static=True)
     dt: float = eqx.field(static=True)
     max_steps: int = eqx.field(static=True)
-    # Tsit5's stages compiled once, in a loop (``simulate(compact=True)``).
-    compact: bool = eqx.field(static=True, default=False)
+    # The form of Tsit5's stage sums (``LaneTsit5.stages``; ``simulate(program=...)``).
+    stages: str = eqx.field(static=True, default="per_state")
 
 
 def _all(values, predicate) -> bool:
@@ -304,7 +306,7 @@ def _solve_one(
     tol = max(1e-10, 1000 * float(jnp.finfo(dtype).eps))
     event = diffrax.Event(cond, root_finder=optx.Newton(rtol=tol, atol=tol), direction=False)
     controller, dt0 = make_controller(cfg.method, cfg.rtol, cfg.atol, cfg.dt, _error_norm)
-    solver = make_solver(cfg.method, dtype, cfg.compact)
+    solver = make_solver(cfg.method, dtype, cfg.stages)
     if loop == "lean" and _fast_loop.supported(solver, controller, event):
         integrate = _fast_loop.diffeqsolve_lean
     else:
@@ -446,6 +448,9 @@ def _solve_one(
 # the wall time of the whole batch on 2 cores, so one device gets large chunks, and the small
 # ones are for a batch sharded over one device per core (``use_all_cpu_cores``). No chunks on
 # GPUs, where a larger batch is better.
+# ``simulate(program=...)``: what the program is made for -> the form of Tsit5's stage sums.
+PROGRAMS = {"throughput": "per_state", "compact": "loop"}
+
 CHUNK = 512
 CHUNK_ONE_DEVICE = 4096
 
@@ -479,7 +484,10 @@ def _simulate_flat(
         return solve(inputs)
     per = size // shards  # lanes per device
     n_chunks = -(-per // chunk)
-    width = -(-per // n_chunks)  # lanes per device and chunk: the chunks as equal as can be
+    # lanes per device and chunk: the chunks as equal as can be, whole lane groups (per_state)
+    group = lane_group(speed.dtype) if cfg.stages == "per_state" else 1
+    width = -(-per // (n_chunks * group)) * group
+    n_chunks = -(-per // width)
     pad = n_chunks * width - per
 
     def split(x):  # (size,) -> (n_chunks, shards * width), each device's lanes in its columns
@@ -502,7 +510,7 @@ def simulate(
     *,
     method: str | None = None,
     adjoint: diffrax.AbstractAdjoint | None = None,
-    compact: bool = False,
+    program: str = "throughput",
 ) -> ImpactResult:
     """Simulate impacts of the scene's sphere on its surface.
 
@@ -517,11 +525,11 @@ def simulate(
     - `adjoint`: how ``diffrax`` differentiates the solve; default
       ``RecursiveCheckpointAdjoint()`` (reverse mode, ``jax.grad``). Pass
       ``diffrax.ForwardMode()`` for forward mode (``jax.jacfwd``, ``jax.jvp``).
-    - `compact`: compile Tsit5's stages as a loop (the default method; others ignore it):
-      about half the tracing and compiling, about 1.2-1.7x the time per call. For one-off
-      work that compiling dominates (the command line's few impacts, a fit); off for batches
-      and repeated calls. Outputs agree with the default to the solver's tolerance (not bit
-      for bit: XLA fuses the loop differently), and are as batch-independent.
+    - `program`: what the compiled program is made for (Tsit5, the default method; other
+      methods ignore it): ``"throughput"`` (default: the fastest to run) or ``"compact"``
+      (one-off work that compiling dominates, such as a fit or a few impacts: half the
+      compile time, about 2x the run time). Each is batch-independent; they agree with each
+      other to the solver's tolerance, not bit for bit (BENCHMARKS.md, "Throughput").
 
     Scalars or arrays (broadcast together; batched internally with ``vmap``).
 
@@ -533,7 +541,7 @@ def simulate(
     Works under ``jax.jit``, ``jax.vmap`` and ``jax.grad``; changing values does not recompile.
     """
     return _simulate(
-        scene, speed, angle_deg, omega0, method=method, adjoint=adjoint, compact=compact
+        scene, speed, angle_deg, omega0, method=method, adjoint=adjoint, program=program
     )
 
 
@@ -547,7 +555,7 @@ def _simulate(
     adjoint=None,
     chunk=None,
     loop="diffrax",
-    compact=False,
+    program="throughput",
 ):
     """``simulate`` with the batch path's private settings: ``chunk``, lanes per device in one
     vmapped solve (default ``_default_chunk``; 0: the whole batch in one, as before issue 12);
@@ -570,32 +578,34 @@ def _simulate(
 
     terms = required_terms(scene, params, angle_deg, omega0)
     cfg = integration_settings(scene, params, speed, angle_deg, dtype, method)
-    if compact:
-        cfg = dataclasses.replace(cfg, compact=True)
+    if program not in PROGRAMS:
+        raise SceneError(f"program must be one of {', '.join(PROGRAMS)}, got {program!r}")
+    cfg = dataclasses.replace(cfg, stages=PROGRAMS[program])
     inputs = (params, speed, angle_deg, omega0)
-    if size == 1:
-        # XLA simplifies a batch of one differently (measured: the last bit of the Hertz
-        # damping force), which an adaptive solve can amplify; a second copy of the impact
-        # gives it the same arithmetic as in any other batch.
-        inputs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]), inputs)
+    # A batch of one is simplified differently by XLA (measured: the last bit of the Hertz
+    # damping force), which an adaptive solve can amplify: at least 2 lanes; and in the
+    # per_state form every lane on the vectorized path: a multiple of `lane_group` lanes per
+    # device (and per chunk, in `_simulate_flat`), padded with copies of the last impact.
+    group = lane_group(dtype) if cfg.stages == "per_state" else 2
     if loop != "diffrax" and not all(map(_is_concrete, jax.tree_util.tree_leaves(inputs))):
         loop = "diffrax"
-    inputs, shards = _shard_over_devices(inputs, size)
+    inputs, shards = _shard_over_devices(inputs, size, group)
     chunk = _default_chunk(shards) if chunk is None else chunk
     result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)
     return jax.tree_util.tree_map(lambda x: x[:size].reshape(shape), result)
 
 
-def _shard_over_devices(inputs, size):
-    """Split a concrete batch over all local devices (GPUs, or host devices on a CPU with
-    ``XLA_FLAGS=--xla_force_host_platform_device_count=N``): padded with copies of its last
-    impact to a multiple of the device count, then sharded along the batch. Returns the inputs
-    and the number of devices they are split over."""
+def _shard_over_devices(inputs, size, group=1):
+    """Pad a batch with copies of its last impact to a multiple of ``group`` lanes per device
+    and, if it is concrete and large enough, split it over all local devices (GPUs, or host
+    devices on a CPU with ``XLA_FLAGS=--xla_force_host_platform_device_count=N``), sharded
+    along the batch. Returns the inputs and the number of devices they are split over."""
     devices = jax.local_devices()
     leaves = jax.tree_util.tree_leaves(inputs)
     if len(devices) == 1 or size < 2 * len(devices) or not all(map(_is_concrete, leaves)):
-        return inputs, 1
-    pad = -size % len(devices)
+        pad = -size % group
+        return jax.tree_util.tree_map(lambda x: jnp.pad(x, (0, pad), mode="edge"), inputs), 1
+    pad = -size % (len(devices) * group)
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
     sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
     inputs = jax.tree_util.tree_map(

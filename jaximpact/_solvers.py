@@ -65,11 +65,11 @@ def default_slip_width(dtype, slip_width):
     return 1e-3 if jnp.finfo(dtype).bits >= 64 else 3e-3
 
 
-def make_solver(method: str, dtype, compact: bool = False):
-    """The diffrax solver for ``method`` (``auto`` must be resolved before); ``compact``: Tsit5
-    with its stages in a loop (``LaneTsit5.stage_loop``)."""
+def make_solver(method: str, dtype, stages: str = "per_state"):
+    """The diffrax solver for ``method`` (``auto`` must be resolved before); ``stages``: the
+    form of Tsit5's stage sums (``LaneTsit5.stages``)."""
     if method == "tsit5":
-        return LaneTsit5(stage_loop=compact)
+        return LaneTsit5(stages=stages)
     if method in EXPLICIT:
         return EXPLICIT[method]()
     if method == "rk4":

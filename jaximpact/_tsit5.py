@@ -8,6 +8,22 @@ factor 6 with what else was in the batch (issue 10). Here every sum is written o
 term, in a fixed order, with elementwise operations only, so a lane's arithmetic is the same
 whatever the batch (checked in tests/test_derivatives.py: alone, batched, shuffled, sharded).
 
+Two forms of the same arithmetic (``LaneTsit5.stages``), each batch-independent, not bitwise
+equal to each other (XLA fuses them differently); measured in BENCHMARKS.md:
+
+- ``"per_state"`` (default): the sums run per state variable, on arrays of one value per
+  lane: no concatenations and slices between stages. Against the state flattened into one
+  array per stage (the form before issue 12): 1.9x the impacts per CPU-second at 20,000
+  lanes, 2.1x at 1,000, 1.8x at 100, and within 10 % on the fit's and the sampler's small
+  forward-mode batches. XLA's CPU code vectorizes these arrays along the lanes, and lanes
+  left over after the last full SIMD vector take a scalar path whose rounding can differ
+  (measured: one lane of 5 or 13 moved, none of any multiple of 4): ``simulate`` therefore
+  pads every batch to a multiple of :func:`lane_group` lanes per device and chunk.
+- ``"loop"``: the state flattened per stage, and the six stages in a ``lax.fori_loop``, so
+  the vector field is traced and compiled once instead of six times: half the compile time
+  (the 25-impact fit: tracing 6.5 -> 4.1 s, XLA 10.5 -> 4.9 s) for about 2x the time per
+  call. For one-off work that compiling dominates (``simulate(program="compact")``).
+
 The method is Tsit5 itself (same tableau, same embedded error estimate, same 4th-order dense
 output), so accuracy and step counts match ``diffrax.Tsit5``. Only ODE terms are supported.
 """
@@ -31,6 +47,15 @@ for _i, _row in enumerate(_TABLEAU.a_lower):
     _A[_i, : len(_row)] = _row
 _C = np.array([float(c) for c in _TABLEAU.c])
 
+STAGE_FORMS = ("per_state", "loop")
+
+
+def lane_group(dtype) -> int:
+    """Lanes per device and chunk are a multiple of this (a 512-bit vector of ``dtype``) in
+    the ``per_state`` form, so every lane takes the vectorized path (module docstring)."""
+    return 64 // jnp.dtype(dtype).itemsize
+
+
 # Dense output of Tsitouras (2011): y(t0 + theta h) = y0 + h sum_i b_i(theta) k_i with
 # b_i(theta) = sum_j R[i][j] theta^(j+1) (the continuous extension's coefficients, as published
 # and as used by OrdinaryDiffEq.jl; tests check them against diffrax.Tsit5's interpolation).
@@ -46,7 +71,7 @@ _DENSE = (
 
 
 def _combine(weights, ks):
-    """``sum_i weights[i] * ks[i]``, one term at a time, in index order (flat state arrays).
+    """``sum_i weights[i] * ks[i]``, one term at a time, in index order (arrays).
 
     Zero weights are skipped (they are exact zeros of the tableau, known in Python)."""
     acc = None
@@ -63,7 +88,7 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
     t0: float
     t1: float
     y0: dict
-    k: jax.Array  # the 7 stages of the flattened state, (7, states)
+    k: object  # the 7 stages: a tuple of state pytrees (per_state), or (7, states) (loop)
 
     def __init__(self, *, t0, t1, y0, y1, k):
         del y1  # diffrax passes it; the dense output does not need it
@@ -79,6 +104,8 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
         weights = [
             theta * (r1 + theta * (r2 + theta * (r3 + theta * r4))) for r1, r2, r3, r4 in _DENSE
         ]
+        if isinstance(self.k, tuple):  # per_state
+            return jtu.tree_map(lambda y, *k: y + h * _combine(weights, list(k)), self.y0, *self.k)
         y0, unravel = ravel_pytree(self.y0)
         return unravel(y0 + h * _combine(weights, [self.k[i] for i in range(7)]))
 
@@ -86,19 +113,16 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
 class LaneTsit5(diffrax.AbstractAdaptiveSolver):
     """``diffrax.Tsit5`` with batch-independent arithmetic (see the module docstring).
 
-    The state is flattened into one array for the stage sums: one operation per stage term
-    instead of one per state and term keeps the compiled program small.
-
-    ``stage_loop``: evaluate the six stages in a ``lax.fori_loop``, so the vector field is
-    traced and compiled once instead of six times. Measured on the 25-impact forward-mode fit
-    program (BENCHMARKS.md, "Fit time"): tracing 6.5 -> 4.1 s, XLA compiling 10.5 -> 4.9 s,
-    but 1.7x the time per call (the loop keeps XLA from fusing across stages). For one-off
-    work that compiling dominates (a fit, a few impacts from the command line).
+    ``stages``: ``"per_state"`` (default) or ``"loop"`` (see the module docstring).
     """
 
     term_structure: ClassVar = diffrax.AbstractTerm
     interpolation_cls: ClassVar[Callable[..., LaneTsit5Interpolation]] = LaneTsit5Interpolation
-    stage_loop: bool = eqx.field(static=True, default=False)
+    stages: str = eqx.field(static=True, default="per_state")
+
+    def __check_init__(self):
+        if self.stages not in STAGE_FORMS:
+            raise ValueError(f"stages must be one of {STAGE_FORMS}, got {self.stages!r}")
 
     def order(self, terms):
         return 5
@@ -107,27 +131,27 @@ class LaneTsit5(diffrax.AbstractAdaptiveSolver):
         return 5
 
     def init(self, terms, t0, t1, y0, args):
-        return ravel_pytree(terms.vf(t0, y0, args))[0]  # first stage, reused (FSAL)
+        k0 = terms.vf(t0, y0, args)  # first stage, reused (FSAL)
+        return k0 if self.stages == "per_state" else ravel_pytree(k0)[0]
 
     def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
         # made_jump is never true here: simulate passes no jump times or discontinuities.
         del made_jump
-        if self.stage_loop:
+        if self.stages == "loop":
             return self._step_in_loop(terms, t0, t1, y0, args, solver_state)
         h = t1 - t0
-        flat0, unravel = ravel_pytree(y0)
         ks = [solver_state]
         for c, a_row in zip(_TABLEAU.c, _TABLEAU.a_lower, strict=True):
-            stage = flat0 + h * _combine([float(a) for a in a_row], ks)
-            ks.append(ravel_pytree(terms.vf(t0 + float(c) * h, unravel(stage), args))[0])
-        # Tsit5's last stage is evaluated at y1 itself (its a-row is b_sol).
-        y1 = unravel(stage)
-        y_error = unravel(h * _combine([float(b) for b in _TABLEAU.b_error], ks))
-        dense_info = dict(y0=y0, y1=y1, k=jnp.stack(ks))
-        return y1, y_error, dense_info, ks[-1], diffrax.RESULTS.successful
+            weights = [float(a) for a in a_row]
+            stage = jtu.tree_map(lambda y, *k, w=weights: y + h * _combine(w, list(k)), y0, *ks)
+            ks.append(terms.vf(t0 + float(c) * h, stage, args))
+        b_error = [float(b) for b in _TABLEAU.b_error]
+        y_error = jtu.tree_map(lambda *k: h * _combine(b_error, list(k)), *ks)
+        dense_info = dict(y0=y0, y1=stage, k=tuple(ks))  # the last stage's point is y1
+        return stage, y_error, dense_info, ks[-1], diffrax.RESULTS.successful
 
     def _step_in_loop(self, terms, t0, t1, y0, args, k0):
-        """``step`` with the stages in a loop (``stage_loop``): same sums, same order."""
+        """``step`` with the stages in a loop (``loop``): same sums, same order."""
         h = t1 - t0
         flat0, unravel = ravel_pytree(y0)
         a_tab, c_tab = jnp.asarray(_A, flat0.dtype), jnp.asarray(_C, flat0.dtype)

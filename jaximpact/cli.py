@@ -136,8 +136,8 @@ def cmd_simulate(args) -> int:
     result = _simulate_from_cache(scene, table)
     if result is None:
         scene = scene_with_overrides(scene, dict(table.overrides))
-        compact = table.speed.size <= CACHED_SIMULATE_MAX
-        result = simulate(scene, table.speed, table.angle_deg, table.omega0, compact=compact)
+        program = "compact" if table.speed.size <= CACHED_SIMULATE_MAX else "throughput"
+        result = simulate(scene, table.speed, table.angle_deg, table.omega0, program=program)
     columns = result.columns()
     if args.output:
         try:
@@ -168,8 +168,8 @@ def cmd_simulate(args) -> int:
 # Up to this many impacts, `jaximpact simulate` runs a traced program kept in the cache (a
 # warm run then skips the seconds of tracing); larger batches are split over all devices by
 # `simulate` itself, which a cached single-device program would not do. Up to this many, the
-# program is also the compact one (`simulate(compact=True)`: half the compiling, and a smaller
-# program to load, for about 1.2x the time per impact).
+# program is also the compact one (`simulate(program="compact")`: half the compiling, and a
+# smaller program to load, for about 1.2x the time per impact).
 CACHED_SIMULATE_MAX = 4096
 
 
@@ -221,7 +221,7 @@ def _simulate_from_cache(scene, table):
 
         def run(params, speed, angle, omega0):
             s = scene_with_overrides(scene, dict(zip(names, params, strict=True)))
-            r = simulate(s, speed, angle, omega0, method=method, compact=True)
+            r = simulate(s, speed, angle, omega0, method=method, program="compact")
             return tuple(getattr(r, f) for f in fields)
 
         from . import simulate

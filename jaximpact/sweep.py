@@ -743,6 +743,7 @@ def _runner(terms, cfg, devices):
 
     from ._results import OUTPUT_FIELDS
     from ._simulate import _default_chunk, _simulate_flat
+    from ._tsit5 import lane_group
 
     shards = len(devices)
     chunk = _default_chunk(shards)
@@ -754,8 +755,10 @@ def _runner(terms, cfg, devices):
         def sweep_chunk(params, speed, angle_deg, omega0):
             inputs = (params, speed, angle_deg, omega0)
             size = speed.shape[0]
-            if size == 1:  # as simulate: a batch of one compiles to other arithmetic
-                inputs = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, x]), inputs)
+            # as simulate: at least 2 lanes, whole lane groups per device (per_state form)
+            group = lane_group(speed.dtype) if cfg.stages == "per_state" else 2
+            pad = -size % (shards * group)
+            inputs = jax.tree_util.tree_map(lambda x: jnp.pad(x, (0, pad), mode="edge"), inputs)
             result = _simulate_flat(terms, cfg, *inputs, chunk=chunk, shards=shards, loop=_LOOP)
             values = jnp.stack([getattr(result, k)[:size] for k in OUTPUT_FIELDS])
             return result.status[:size], values

@@ -1,8 +1,9 @@
-"""``simulate(compact=True)``: Tsit5's stages in a loop (compiled once), for compile-bound work.
+"""``simulate(program=...)``: two forms of Tsit5's stage sums, each batch-independent.
 
-The compact program is a different XLA program, so its bits differ from the default's; what
-must hold is the same method (Tsit5, to rounding), the same answers to the solver's tolerance,
-the same batch independence, and derivatives that agree with the default's.
+``"throughput"`` (per state variable, batches padded to whole SIMD lane groups) and
+``"compact"`` (the state flattened, the stages in a loop) are different XLA programs, so their
+bits differ; what must hold for each is the same method (Tsit5, to rounding), the same answers
+to the solver's tolerance, the same independence of the batch, and the same derivatives.
 """
 
 import diffrax
@@ -10,26 +11,29 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_derivatives import BATCH, seed
 
 import jaximpact as ji
-from jaximpact._tsit5 import LaneTsit5
-
-from test_derivatives import BATCH, seed
+from jaximpact._simulate import PROGRAMS
+from jaximpact._tsit5 import STAGE_FORMS, LaneTsit5
 
 OUTPUTS = ("cor_n", "vt_out", "omega_out", "contact_time")
 
 
-def test_stage_loop_is_tsit5():
-    """One step with the stages in a loop: Tsit5's step, error estimate and dense output."""
+@pytest.mark.parametrize("stages", STAGE_FORMS)
+def test_each_stage_form_is_tsit5(stages):
+    """One step: Tsit5's step, error estimate, dense output and FSAL stage, to rounding."""
     term = diffrax.ODETerm(lambda t, y, args: {"a": -y["a"] * y["b"], "b": jnp.sin(t) + y["a"]})
     y0 = {"a": jnp.asarray(1.3), "b": jnp.asarray(-0.4)}
     t0, t1 = 0.2, 0.5
-    loop, ref = LaneTsit5(stage_loop=True), diffrax.Tsit5()
-    y1, err1, dense1, k1, _ = loop.step(
-        term, t0, t1, y0, None, loop.init(term, t0, t1, y0, None), False
+    mine, ref = LaneTsit5(stages=stages), diffrax.Tsit5()
+    y1, err1, dense1, k1, _ = mine.step(
+        term, t0, t1, y0, None, mine.init(term, t0, t1, y0, None), False
     )
-    y2, err2, dense2, _, _ = ref.step(term, t0, t1, y0, None, ref.init(term, t0, t1, y0, None), False)
-    interp1 = loop.interpolation_cls(t0=t0, t1=t1, **dense1)
+    y2, err2, dense2, _, _ = ref.step(
+        term, t0, t1, y0, None, ref.init(term, t0, t1, y0, None), False
+    )
+    interp1 = mine.interpolation_cls(t0=t0, t1=t1, **dense1)
     interp2 = ref.interpolation_cls(t0=t0, t1=t1, **dense2)
     for k in y0:
         assert float(y1[k]) == pytest.approx(float(y2[k]), rel=1e-14, abs=1e-15)
@@ -38,26 +42,41 @@ def test_stage_loop_is_tsit5():
             assert float(interp1.evaluate(t)[k]) == pytest.approx(
                 float(interp2.evaluate(t)[k]), rel=1e-13, abs=1e-13
             )
-    # FSAL: the last stage is the vector field at y1
     f1 = jax.flatten_util.ravel_pytree(term.vf(t1, y1, None))[0]
+    k1 = jax.flatten_util.ravel_pytree(k1)[0]
     np.testing.assert_allclose(np.asarray(k1), np.asarray(f1), rtol=1e-14)
 
 
-def test_compact_batch_does_not_change_a_lane(table1):
-    """Outputs and step counts bitwise: alone, in a batch, in a shuffled batch; and within the
-    solver's tolerance of the default program."""
-    speed, angle, omega0 = BATCH
-    batch = ji.simulate(table1, speed, angle, omega0, compact=True)
-    perm = np.random.default_rng(seed("shuffle-compact")).permutation(len(speed))
-    shuffled = ji.simulate(table1, speed[perm], angle[perm], omega0[perm], compact=True)
+def test_unknown_program_is_refused(table1):
+    with pytest.raises(ValueError, match="program must be one of"):
+        ji.simulate(table1, 1.0, 0.0, 0.0, program="fastest")
+    with pytest.raises(ValueError, match="stages must be one of"):
+        LaneTsit5(stages="unrolled")
+
+
+@pytest.mark.parametrize("program", ["throughput", "compact"])
+def test_each_program_is_batch_independent(table1, program):
+    """Outputs and step counts bitwise: alone, in a batch, and in shuffled sub-batches of odd
+    sizes (5 and 13 lanes moved a lane of the per-state form before lane-group padding); and
+    within the solver's tolerance of the default program. The default program is checked the
+    same way in tests/test_derivatives.py."""
+    speed, angle, omega0 = (np.concatenate([x, x[::-1]]) for x in BATCH)  # 14 impacts
+    speed = speed * np.linspace(1.0, 1.1, speed.size)  # all distinct
+    batch = ji.simulate(table1, speed, angle, omega0, program=program)
     default = ji.simulate(table1, speed, angle, omega0)
-    for i in (0, 3, 6):
-        alone = ji.simulate(table1, speed[i], angle[i], omega0[i], compact=True)
-        j = int(np.flatnonzero(perm == i)[0])
+    rng = np.random.default_rng(seed(f"sub-batches-{program}"))
+    for n in (5, 13):
+        pick = rng.choice(speed.size, n, replace=False)
+        sub = ji.simulate(table1, speed[pick], angle[pick], omega0[pick], program=program)
         for k in (*OUTPUTS, "steps"):
-            a, b, c = (np.asarray(getattr(x, k)) for x in (alone, batch, shuffled))
-            np.testing.assert_array_equal(a, b[i], err_msg=f"{k}, impact {i}")
-            np.testing.assert_array_equal(c[j], b[i], err_msg=f"{k}, impact {i} shuffled")
+            np.testing.assert_array_equal(
+                np.asarray(getattr(sub, k)), np.asarray(getattr(batch, k))[pick], err_msg=k
+            )
+    alone = ji.simulate(table1, speed[3], angle[3], omega0[3], program=program)
+    for k in (*OUTPUTS, "steps"):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(alone, k)), np.asarray(getattr(batch, k))[3]
+        )
     np.testing.assert_array_equal(np.asarray(batch.status), np.asarray(default.status))
     scale = {"cor_n": 1.0, "vt_out": speed, "omega_out": speed / table1.particle.radius}
     for k in OUTPUTS:
@@ -66,24 +85,23 @@ def test_compact_batch_does_not_change_a_lane(table1):
         assert np.all(np.abs(got - want) <= 1e-7 * s), (k, got, want)
 
 
-@pytest.mark.slow  # two forward-mode programs: CI's second step
-def test_compact_derivatives_match_default(table1):
-    """Forward-mode derivatives of the compact program against the default program's, which
+@pytest.mark.slow  # three forward-mode programs: CI's second step
+def test_programs_give_the_same_derivatives(table1):
+    """Forward-mode derivatives of every program against the default program's, which
     tests/test_derivatives.py checks against the exact reference."""
-    speed, angle, omega0 = np.array([1.2, 0.8, 3.0]), np.array([25.0, -40.0, 0.0]), np.array(
-        [0.0, 8000.0, -2e4]
-    )
+    speed, angle = np.array([1.2, 0.8, 3.0]), np.array([25.0, -40.0, 0.0])
+    omega0 = np.array([0.0, 8000.0, -2e4])
 
-    def outputs(x, compact):
+    def outputs(x, program):
         scene = table1.replace(contact={"f0": x[0], "C_H": x[1], "friction": x[2]})
-        r = ji.simulate(
-            scene, speed, angle, omega0, adjoint=diffrax.ForwardMode(), compact=compact
-        )
-        return jnp.stack([r.cor_n, r.vt_out / speed, r.omega_out * table1.particle.radius / speed])
+        r = ji.simulate(scene, speed, angle, omega0, adjoint=diffrax.ForwardMode(), program=program)
+        radius = table1.particle.radius
+        return jnp.stack([r.cor_n, r.vt_out / speed, r.omega_out * radius / speed])
 
     c = table1.contact
     x0 = jnp.asarray([c.f0, c.C_H, c.friction], dtype=float)
-    jac = {k: jax.jacfwd(lambda x, k=k: outputs(x, k))(x0) * x0 for k in (False, True)}
-    typical = np.abs(np.asarray(jac[False])).max(axis=(1, 2), keepdims=True)
-    err = np.abs(np.asarray(jac[True]) - np.asarray(jac[False])) / typical
-    assert err.max() < 1e-5, err
+    jac = {p: np.asarray(jax.jacfwd(lambda x, p=p: outputs(x, p))(x0) * x0) for p in PROGRAMS}
+    typical = np.abs(jac["throughput"]).max(axis=(1, 2), keepdims=True)
+    for p in ("compact",):
+        err = np.abs(jac[p] - jac["throughput"]) / typical
+        assert err.max() < 1e-5, (p, err)
