@@ -440,25 +440,28 @@ def _solve_one(
     return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
 
 
-# Lanes per device that one chunk of a large batch integrates at a time, on a CPU (issue 12;
-# measured in BENCHMARKS.md, "Throughput (issue 12)"). A vmapped solve walks its whole state
-# once per step; a chunk of 512 lanes keeps that state in a core's caches (1.37x per CPU-second
-# on one core against the whole batch of 20000). But XLA splits the operations of a large
-# batch over all cores, which a small chunk forgoes: on one device a chunk of 512 took 1.5x
-# the wall time of the whole batch on 2 cores, so one device gets large chunks, and the small
-# ones are for a batch sharded over one device per core (``use_all_cpu_cores``). No chunks on
-# GPUs, where a larger batch is better.
 # ``simulate(program=...)``: what the program is made for -> the form of Tsit5's stage sums.
 PROGRAMS = {"throughput": "per_state", "compact": "loop"}
 
-CHUNK = 512
-CHUNK_ONE_DEVICE = 4096
+# Lanes per device that one chunk of a large batch integrates at a time, on a CPU, in float64
+# (float32: twice as many, the same bytes); issue 12, measured in BENCHMARKS.md, "Throughput
+# (issue 12)". A vmapped solve walks its whole state once per step, which a chunk keeps in a
+# core's caches; XLA also splits the operations of a large batch over all cores, which a small
+# chunk forgoes, so one device gets large chunks, and the smaller ones are for a batch sharded
+# over one device per core (``use_all_cpu_cores``). Retuned for the per-state stage sums
+# (fourth session; 20,000 impacts, medians of 3): 2 devices, chunk 2048 float64 12,729/s
+# against 10,839 at 512 and 9,508 whole; float32 chunk 4096 92,710/s against 46,814 at 512
+# and 73,795 whole; 1 device float64 8192 10,770/s against 9,255 at 4096. No chunks on GPUs,
+# where a larger batch is better.
+CHUNK = 2048
+CHUNK_ONE_DEVICE = 8192
 
 
-def _default_chunk(shards: int) -> int:
+def _default_chunk(shards: int, dtype=None) -> int:
     if jax.default_backend() != "cpu":
         return 0
-    return CHUNK if shards > 1 else CHUNK_ONE_DEVICE
+    per_float64 = CHUNK if shards > 1 else CHUNK_ONE_DEVICE
+    return per_float64 * 8 // jnp.dtype(dtype or jnp.result_type(float)).itemsize
 
 
 @eqx.filter_jit
@@ -590,7 +593,7 @@ def _simulate(
     if loop != "diffrax" and not all(map(_is_concrete, jax.tree_util.tree_leaves(inputs))):
         loop = "diffrax"
     inputs, shards = _shard_over_devices(inputs, size, group)
-    chunk = _default_chunk(shards) if chunk is None else chunk
+    chunk = _default_chunk(shards, dtype) if chunk is None else chunk
     result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)
     return jax.tree_util.tree_map(lambda x: x[:size].reshape(shape), result)
 
