@@ -6,9 +6,11 @@ cor_n, vt/speed, omega r/speed, angle in rad, contact time / its K-sensitivity; 
 x d/dx, per radian, per speed/radius), with a floor of 1e-2 of the largest entry of the row.
 
     python benchmarks/derivative_accuracy.py   # prints a Markdown table (~10 min on 2 cores)
+    python benchmarks/derivative_accuracy.py --default   # the default settings only, both programs
 """
 
 import math
+import sys
 import time
 
 import jax
@@ -33,40 +35,43 @@ def scaled(params, speed, values, out, c):
     return values * x / (y if y else 1.0)
 
 
-def main():
+def main(default_only=False):
     params = ref.table1_params()
     base = ji.table1_scene()
     exact = []
     for v, a, w in IMPACTS:
         exact.append(ref.output_derivatives(params, v, a, w, inputs=INPUTS_USED)[0])
     rows = []
-    for rtol in (1e-8, 1e-9, 1e-10, 1e-11):
-        for width in (1e-3, 3e-3):
-            scene = base.replace(solver={"rtol": rtol, "atol": rtol / 100, "slip_width": width})
-            sp, an, om = (np.array(c) for c in zip(*IMPACTS, strict=True))
-            t = time.perf_counter()
-            jac = ji.output_jacobian(scene, sp, an, om, inputs=INPUTS_USED)
-            seconds = time.perf_counter() - t
-            steps = float(np.median(np.asarray(ji.simulate(scene, sp, an, om).steps)))
-            errors = []
-            for i, (v, _, _) in enumerate(IMPACTS):
-                for out in OUTPUTS:
-                    want = {c: scaled(params, v, exact[i][out][c], out, c) for c in INPUTS_USED}
-                    typical = max(abs(x) for x in want.values())
-                    for j, c in enumerate(INPUTS_USED):
-                        got = scaled(params, v, float(jac[out][i, j]), out, c)
-                        errors.append(abs(got - want[c]) / max(abs(want[c]), 1e-2 * typical))
-            errors = np.array(errors)
-            rows.append((rtol, width, errors.max(), np.median(errors), (errors > 1e-3).sum(),
-                         errors.size, steps, seconds))  # fmt: skip
-    print("| rtol | slip_width | max error | median error | > 1e-3 | median steps | jacfwd s |")
-    print("|---|---|---|---|---|---|---|")
+    settings = [(r, w, "throughput") for r in (1e-8, 1e-9, 1e-10, 1e-11) for w in (1e-3, 3e-3)]
+    if default_only:
+        settings = [(1e-10, 1e-3, "throughput"), (1e-10, 1e-3, "compact")]
+    for rtol, width, program in settings:
+        scene = base.replace(solver={"rtol": rtol, "atol": rtol / 100, "slip_width": width})
+        sp, an, om = (np.array(c) for c in zip(*IMPACTS, strict=True))
+        t = time.perf_counter()
+        jac = ji.output_jacobian(scene, sp, an, om, inputs=INPUTS_USED, program=program)
+        seconds = time.perf_counter() - t
+        steps = float(np.median(np.asarray(ji.simulate(scene, sp, an, om).steps)))
+        errors = []
+        for i, (v, _, _) in enumerate(IMPACTS):
+            for out in OUTPUTS:
+                want = {c: scaled(params, v, exact[i][out][c], out, c) for c in INPUTS_USED}
+                typical = max(abs(x) for x in want.values())
+                for j, c in enumerate(INPUTS_USED):
+                    got = scaled(params, v, float(jac[out][i, j]), out, c)
+                    errors.append(abs(got - want[c]) / max(abs(want[c]), 1e-2 * typical))
+        errors = np.array(errors)
+        rows.append((rtol, width, errors.max(), np.median(errors), (errors > 1e-3).sum(),
+                     errors.size, steps, seconds, program))  # fmt: skip
+    print("| rtol | slip_width | program | max error | median error | > 1e-3 | median steps "
+          "| jacfwd s |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(
-            f"| {r[0]:.0e} | {r[1]:.0e} | {r[2]:.1e} | {r[3]:.1e} | {r[4]} of {r[5]} "
+            f"| {r[0]:.0e} | {r[1]:.0e} | {r[8]} | {r[2]:.1e} | {r[3]:.1e} | {r[4]} of {r[5]} "
             f"| {r[6]:.0f} | {r[7]:.1f} |"
         )
 
 
 if __name__ == "__main__":
-    main()
+    main(default_only="--default" in sys.argv[1:])
