@@ -14,7 +14,6 @@ import subprocess
 import sys
 import zlib
 
-import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,7 +22,6 @@ import pytest
 import jaximpact as ji
 from jaximpact import reference as ref
 from jaximpact._sensitivity import INPUTS, OUTPUTS
-from jaximpact._tsit5 import LaneTsit5
 
 TOL = 1e-3  # the issue's target, relative to the column's typical magnitude
 
@@ -248,26 +246,3 @@ def test_ledger_closes_without_rotation(table1):
         res.energy_in
     )
     assert np.all(np.abs(gap) < 1e-6), gap
-
-
-def test_lane_tsit5_is_tsit5():
-    """The batch-independent solver takes the same step and gives the same dense output as
-    diffrax.Tsit5 (to rounding), on a nonlinear ODE."""
-    term = diffrax.ODETerm(lambda t, y, args: {"a": -y["a"] * y["b"], "b": jnp.sin(t) + y["a"]})
-    y0 = {"a": jnp.asarray(1.3), "b": jnp.asarray(-0.4)}
-    t0, t1 = 0.2, 0.5
-    mine, theirs = LaneTsit5(), diffrax.Tsit5()
-    y1, err1, dense1, _, _ = mine.step(
-        term, t0, t1, y0, None, mine.init(term, t0, t1, y0, None), False
-    )
-    y2, err2, dense2, _, _ = theirs.step(
-        term, t0, t1, y0, None, theirs.init(term, t0, t1, y0, None), False
-    )
-    interp1 = mine.interpolation_cls(t0=t0, t1=t1, **dense1)
-    interp2 = theirs.interpolation_cls(t0=t0, t1=t1, **dense2)
-    for k in y0:
-        assert float(y1[k]) == pytest.approx(float(y2[k]), rel=1e-14, abs=1e-15)
-        assert float(err1[k]) == pytest.approx(float(err2[k]), rel=1e-9, abs=1e-17)
-        for t in np.linspace(t0, t1, 7):
-            a, b = interp1.evaluate(t)[k], interp2.evaluate(t)[k]
-            assert float(a) == pytest.approx(float(b), rel=1e-13, abs=1e-13)  # O(1) state
