@@ -497,7 +497,7 @@ def _simulate_flat(
     per = size // shards  # lanes per device
     n_chunks = -(-per // chunk)
     # lanes per device and chunk: the chunks as equal as can be, whole lane groups (per_state)
-    group = lane_group(speed.dtype) if cfg.stages == "per_state" else 1
+    group = lane_group(speed.dtype, cfg.stages)
     width = -(-per // (n_chunks * group)) * group
     n_chunks = -(-per // width)
     pad = n_chunks * width - per
@@ -598,7 +598,7 @@ def _simulate(
     # damping force), which an adaptive solve can amplify: at least 2 lanes; and in the
     # per_state form every lane on the vectorized path: a multiple of `lane_group` lanes per
     # device (and per chunk, in `_simulate_flat`), padded with copies of the last impact.
-    group = lane_group(dtype) if cfg.stages == "per_state" else 2
+    group = max(2, lane_group(dtype, cfg.stages))
     if loop != "diffrax" and not all(map(_is_concrete, jax.tree_util.tree_leaves(inputs))):
         loop = "diffrax"
     inputs, shards = _shard_over_devices(inputs, size, group)

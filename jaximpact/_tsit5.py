@@ -50,10 +50,11 @@ _C = np.array([float(c) for c in _TABLEAU.c])
 STAGE_FORMS = ("per_state", "loop")
 
 
-def lane_group(dtype) -> int:
-    """Lanes per device and chunk are a multiple of this (a 512-bit vector of ``dtype``) in
-    the ``per_state`` form, so every lane takes the vectorized path (module docstring)."""
-    return 64 // jnp.dtype(dtype).itemsize
+def lane_group(dtype, stages="per_state") -> int:
+    """Lanes per device and chunk are a multiple of this: in the ``per_state`` form a 512-bit
+    vector of ``dtype``, so every lane takes the vectorized path (module docstring); 1 in the
+    ``loop`` form."""
+    return 64 // jnp.dtype(dtype).itemsize if stages == "per_state" else 1
 
 
 # Dense output of Tsitouras (2011): y(t0 + theta h) = y0 + h sum_i b_i(theta) k_i with

@@ -169,7 +169,7 @@ def cmd_simulate(args) -> int:
 # warm run then skips the seconds of tracing); larger batches are split over all devices by
 # `simulate` itself, which a cached single-device program would not do. Up to this many, the
 # program is also the compact one (`simulate(program="compact")`: half the compiling, and a
-# smaller program to load, for about 1.2x the time per impact).
+# smaller program to load, for about 2x the time per impact).
 CACHED_SIMULATE_MAX = 4096
 
 

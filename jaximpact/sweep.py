@@ -756,8 +756,7 @@ def _runner(terms, cfg, devices):
             inputs = (params, speed, angle_deg, omega0)
             size = speed.shape[0]
             # as simulate: at least 2 lanes, whole lane groups per device (per_state form)
-            group = lane_group(speed.dtype) if cfg.stages == "per_state" else 2
-            pad = -size % (shards * group)
+            pad = -size % (shards * max(2, lane_group(speed.dtype, cfg.stages)))
             inputs = jax.tree_util.tree_map(lambda x: jnp.pad(x, (0, pad), mode="edge"), inputs)
             result = _simulate_flat(terms, cfg, *inputs, chunk=chunk, shards=shards, loop=_LOOP)
             values = jnp.stack([getattr(result, k)[:size] for k in OUTPUT_FIELDS])
