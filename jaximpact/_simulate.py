@@ -270,7 +270,7 @@ def _solve_one(
     """Integrate one impact in Hertz units and return its ``ImpactResult`` fields (SI).
 
     ``loop="lean"``: the step loop of ``_fast_loop`` where it supports the solver (forward
-    only; issue 12's prototype), else ``diffrax.diffeqsolve``.
+    only: explicit adaptive solvers), else ``diffrax.diffeqsolve``.
     """
     dtype = jnp.result_type(speed)
     p, u = _scaled(params, speed, angle_deg, omega0)
@@ -566,13 +566,16 @@ def _simulate(
     method=None,
     adjoint=None,
     chunk=None,
-    loop="diffrax",
+    loop=None,
     program="throughput",
 ):
     """``simulate`` with the batch path's private settings: ``chunk``, lanes per device in one
     vmapped solve (default ``_default_chunk``; 0: the whole batch in one, as before issue 12);
-    ``loop``: ``"lean"`` asks for ``_fast_loop``'s step loop (forward only: used only where
-    every input is concrete, so differentiation and traced inputs go through ``diffeqsolve``)."""
+    ``loop``: the step loop, ``"lean"`` (``_fast_loop``: forward only, so used only where every
+    input is concrete) or ``"diffrax"`` (``diffeqsolve``); default (None): lean where every
+    input is concrete, so that ``jax.grad``, ``jax.jacfwd`` and traced inputs go through
+    ``diffeqsolve``. Both give the same bits (tests/test_throughput_paths.py); the lean loop
+    runs 1.2-1.6x as many impacts per second (BENCHMARKS.md, "Throughput (issue 12)")."""
     speed = scene.impact.speed if speed is None else speed
     angle_deg = scene.impact.angle_deg if angle_deg is None else angle_deg
     omega0 = scene.impact.omega0 if omega0 is None else omega0
@@ -599,7 +602,9 @@ def _simulate(
     # per_state form every lane on the vectorized path: a multiple of `lane_group` lanes per
     # device (and per chunk, in `_simulate_flat`), padded with copies of the last impact.
     group = max(2, lane_group(dtype, cfg.stages))
-    if loop != "diffrax" and not all(map(_is_concrete, jax.tree_util.tree_leaves(inputs))):
+    concrete = all(map(_is_concrete, jax.tree_util.tree_leaves(inputs)))
+    loop = "lean" if loop is None else loop
+    if loop != "diffrax" and not concrete:
         loop = "diffrax"
     inputs, shards = _shard_over_devices(inputs, size, group)
     chunk = _default_chunk(shards, dtype) if chunk is None else chunk

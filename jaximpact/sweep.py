@@ -713,8 +713,9 @@ _RUNNERS: dict = {}
 _STIFFNESS: list = []  # the jitted stiffness estimate, made on first use (jax imports lazily)
 
 # How the sweep's program solves a chunk: the batch path of ``jaximpact.simulate`` (its
-# ``_simulate``), so that a sweep gives simulate's bits. ``loop``: simulate's default.
-_LOOP = "diffrax"
+# ``_simulate``), so that a sweep gives simulate's bits. ``loop``: simulate's choice for
+# concrete inputs (a sweep never differentiates).
+_LOOP = "lean"
 
 
 def _runner(terms, cfg, devices):

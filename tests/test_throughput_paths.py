@@ -90,17 +90,45 @@ def test_chunked_reverse_gradient_matches_unchunked(table1):
     assert chunked == pytest.approx(whole, rel=1e-12)
 
 
-def test_lean_loop_is_bitwise_diffeqsolve(table1):
-    """``_fast_loop``'s step loop: diffrax's arithmetic without its bookkeeping, same bits
-    (rebounds and a capture), and chunked like the default path."""
-    speed, angle, omega0 = impacts(7, seed=5)
-    ref = sim._simulate(table1, speed, angle, omega0, chunk=0)
-    lean = sim._simulate(table1, speed, angle, omega0, chunk=4, loop="lean")
-    assert np.asarray(ref.status)[1] == ji.Status.CAPTURED
+def _assert_same(a, b):
     for k in FIELDS:
-        np.testing.assert_array_equal(
-            np.asarray(getattr(lean, k)), np.asarray(getattr(ref, k)), err_msg=k
-        )
+        np.testing.assert_array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k)), k)
+
+
+def test_default_loop_is_bitwise_diffeqsolve(table1):
+    """The default step loop for concrete inputs (``_fast_loop``'s lean loop): diffrax's
+    arithmetic without its bookkeeping, the same bits (rebounds and a capture), chunked."""
+    speed, angle, omega0 = impacts(7, seed=5)
+    ref = sim._simulate(table1, speed, angle, omega0, chunk=0, loop="diffrax")
+    default = sim._simulate(table1, speed, angle, omega0, chunk=4)
+    assert np.asarray(ref.status)[1] == ji.Status.CAPTURED
+    _assert_same(default, ref)
+
+
+@pytest.mark.slow  # compiles programs of its own: CI's second step
+@pytest.mark.parametrize("x64, program", [(True, "compact"), (False, "throughput")])
+def test_lean_loop_is_bitwise_diffeqsolve_other_programs(table1, x64, program):
+    """The same for the fit's compact program and in float32 (events by bisection)."""
+    speed, angle, omega0 = impacts(9, seed=7)
+    with jax.enable_x64(x64):
+        kw = dict(chunk=0, program=program)
+        ref = sim._simulate(table1, speed, angle, omega0, loop="diffrax", **kw)
+        lean = sim._simulate(table1, speed, angle, omega0, loop="lean", **kw)
+    assert np.asarray(ref.status)[1] == ji.Status.CAPTURED
+    _assert_same(lean, ref)
+
+
+def test_lean_loop_reports_the_step_limit_as_diffeqsolve(table1):
+    """Failures too: impacts that run out of steps end ``max_steps`` with NaN outputs in both
+    loops (same step counts), the others as before."""
+    speed, angle, omega0 = impacts(5, seed=8)
+    scene = table1.replace(solver={"max_steps": 200})
+    ref = sim._simulate(scene, speed, angle, omega0, chunk=0, loop="diffrax")
+    lean = sim._simulate(scene, speed, angle, omega0, chunk=0)
+    status = np.asarray(ref.status)
+    assert (status == ji.Status.MAX_STEPS).any() and (status != ji.Status.MAX_STEPS).any()
+    assert np.isnan(np.asarray(lean.cor_n)[status == ji.Status.MAX_STEPS]).all()
+    _assert_same(lean, ref)
 
 
 @pytest.mark.slow  # compiles programs of its own: CI's second step
