@@ -423,7 +423,11 @@ PATHS = {
         "twice as many)",
         dict(loop="diffrax"),
     ),
-    "lean": ("chunked lean step loop (default for concrete inputs)", {}),
+    "lean": ("chunked lean step loop", dict(loop="lean")),
+    "default": (
+        "default (concrete inputs): float64 the chunked lean loop, float32 the pooled lean loop",
+        {},
+    ),
 }
 
 

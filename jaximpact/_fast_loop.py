@@ -54,9 +54,11 @@ def supported(solver, controller, event) -> bool:
     )
 
 
-def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, *, event, stepsize_controller, max_steps):
-    """One solve (one lane; ``vmap`` it), as ``diffrax.diffeqsolve(..., throw=False)``."""
-    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
+def lane_functions(term, solver, t0, t1, dt0, dtype, *, event, stepsize_controller, max_steps):
+    """The pieces of one lane's solve: ``init(y0, args) -> state``, ``running(state)``,
+    ``step(state, args) -> state`` and ``finish(state, args) -> LeanSolution``, called in
+    that order they are :func:`diffeqsolve_lean`; :func:`solve_pool` calls them on lanes
+    that change impacts."""
     t0, t1, dt0 = (jnp.asarray(x, dtype) for x in (t0, t1, dt0))
     controller = stepsize_controller
     cond_fn = event.cond_fn
@@ -65,34 +67,36 @@ def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, *, event, stepsize_con
     for _ in range(100):
         t1_clip_floor = eqxi.prevbefore(t1_clip_floor)
 
-    tnext, controller_state = controller.init(term, t0, t1, y0, dt0, args, solver.func, error_order)
-    tnext = jnp.minimum(tnext, t1)
-    solver_state = solver.init(term, t0, tnext, y0, args)
-    value0 = cond_fn(t0, y0, args)
-    init = dict(
-        tprev=t0,
-        tnext=tnext,
-        y=y0,
-        solver_state=solver_state,
-        controller_state=controller_state,
-        num_steps=jnp.zeros((), jnp.int32),
-        result=RESULTS.where(jnp.zeros((), bool), RESULTS.successful, RESULTS.successful),
-        event=jnp.zeros((), bool),
-        value=value0,
-        # the last attempted step, to repeat it after the loop
-        ev_tprev=t0,
-        ev_tnext=t0,
-        ev_y=y0,
-        ev_state=solver_state,
-    )
+    def init(y0, args):
+        tnext, controller_state = controller.init(
+            term, t0, t1, y0, dt0, args, solver.func, error_order
+        )
+        tnext = jnp.minimum(tnext, t1)
+        solver_state = solver.init(term, t0, tnext, y0, args)
+        return dict(
+            tprev=t0,
+            tnext=tnext,
+            y=y0,
+            solver_state=solver_state,
+            controller_state=controller_state,
+            num_steps=jnp.zeros((), jnp.int32),
+            result=RESULTS.where(jnp.zeros((), bool), RESULTS.successful, RESULTS.successful),
+            event=jnp.zeros((), bool),
+            value=cond_fn(t0, y0, args),
+            # the last attempted step, to repeat it in finish
+            ev_tprev=t0,
+            ev_tnext=t0,
+            ev_y=y0,
+            ev_state=solver_state,
+        )
 
-    def running(s):  # diffrax's cond_fun
+    def unfinished(s):  # diffrax's cond_fun
         return (s["tprev"] < t1) & is_successful(s["result"])
 
-    def cond(s):
-        return running(s) & (s["num_steps"] < max_steps)
+    def running(s):
+        return unfinished(s) & (s["num_steps"] < max_steps)
 
-    def body(s):
+    def step(s, args):
         y1, y_error, _, new_state, step_result = solver.step(
             term, s["tprev"], s["tnext"], s["y"], args, s["solver_state"], False
         )
@@ -130,40 +134,188 @@ def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, *, event, stepsize_con
             ev_state=s["solver_state"],
         )
 
-    s = jax.lax.while_loop(cond, body, init)
-    result = s["result"]
-    happened = s["event"]
+    def finish(s, args):
+        result = s["result"]
+        happened = s["event"]
 
-    def root_find():
-        _, _, dense_info, _, _ = solver.step(
-            term, s["ev_tprev"], s["ev_tnext"], s["ev_y"], args, s["ev_state"], False
-        )
-        interp = solver.interpolation_cls(t0=s["ev_tprev"], t1=s["ev_tnext"], **dense_info)
-
-        def fn(t, _):
-            value = jax.lax.cond(
-                happened, lambda: cond_fn(t, interp.evaluate(t), args), lambda: 0.0
+        def root_find():
+            _, _, dense_info, _, _ = solver.step(
+                term, s["ev_tprev"], s["ev_tnext"], s["ev_y"], args, s["ev_state"], False
             )
-            return jnp.where(happened, value, s["ev_tnext"] - t)
+            interp = solver.interpolation_cls(t0=s["ev_tprev"], t1=s["ev_tnext"], **dense_info)
 
-        sol = optx.root_find(
-            fn,
-            event.root_finder,
-            y0=s["ev_tnext"],
-            options=dict(lower=s["ev_tprev"], upper=s["ev_tnext"]),
-            throw=False,
+            def fn(t, _):
+                value = jax.lax.cond(
+                    happened, lambda: cond_fn(t, interp.evaluate(t), args), lambda: 0.0
+                )
+                return jnp.where(happened, value, s["ev_tnext"] - t)
+
+            sol = optx.root_find(
+                fn,
+                event.root_finder,
+                y0=s["ev_tnext"],
+                options=dict(lower=s["ev_tprev"], upper=s["ev_tnext"]),
+                throw=False,
+            )
+            y = jax.lax.cond(
+                s["num_steps"] == 0, lambda: s["y"], lambda: interp.evaluate(sol.value)
+            )
+            ok = sol.result == optx.RESULTS.successful
+            return sol.value, y, RESULTS.where(ok, result, RESULTS.promote(sol.result))
+
+        tfinal, yfinal, result = jax.lax.cond(
+            eqxi.unvmap_any(happened), root_find, lambda: (s["tprev"], s["y"], result)
         )
-        y = jax.lax.cond(s["num_steps"] == 0, lambda: s["y"], lambda: interp.evaluate(sol.value))
-        ok = sol.result == optx.RESULTS.successful
-        return sol.value, y, RESULTS.where(ok, result, RESULTS.promote(sol.result))
+        result = RESULTS.where(unfinished(s), RESULTS.max_steps_reached, result)
+        return LeanSolution(
+            ts=tfinal[None],
+            ys=jax.tree_util.tree_map(lambda x: x[None], yfinal),
+            result=result,
+            stats={"num_steps": s["num_steps"]},
+        )
 
-    tfinal, yfinal, result = jax.lax.cond(
-        eqxi.unvmap_any(happened), root_find, lambda: (s["tprev"], s["y"], result)
+    return init, running, step, finish
+
+
+def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, *, event, stepsize_controller, max_steps):
+    """One solve (one lane; ``vmap`` it), as ``diffrax.diffeqsolve(..., throw=False)``."""
+    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
+    init, running, step, finish = lane_functions(
+        term,
+        solver,
+        t0,
+        t1,
+        dt0,
+        dtype,
+        event=event,
+        stepsize_controller=stepsize_controller,
+        max_steps=max_steps,
     )
-    result = RESULTS.where(running(s), RESULTS.max_steps_reached, result)
-    return LeanSolution(
-        ts=tfinal[None],
-        ys=jax.tree_util.tree_map(lambda x: x[None], yfinal),
-        result=result,
-        stats={"num_steps": s["num_steps"]},
+    s = jax.lax.while_loop(running, lambda s: step(s, args), init(y0, args))
+    return finish(s, args)
+
+
+# Refill the lanes once this fraction of them has finished: often enough that few lanes idle,
+# rarely enough that the refill (a gather, one vector-field evaluation per lane for the new
+# impacts' first stage, a scatter of the finished lanes' states) costs little.
+REFILL_FRACTION = 1 / 8
+
+
+def solve_pool(
+    term,
+    solver,
+    t0,
+    t1,
+    dt0,
+    y0s,
+    args_s,
+    *,
+    event,
+    stepsize_controller,
+    max_steps,
+    lanes,
+    tail_lanes,
+):
+    """Solve a batch of impacts (the leading axis of ``y0s`` and ``args_s``) with ``lanes``
+    lane slots that each take the next impact when theirs has finished.
+
+    A vmapped solve runs every lane for as many steps as its slowest impact needs (in the
+    near-capture band, float32, a few grazing impacts take 40x the median steps). Here the
+    lanes are stepped together as in ``vmap`` (a finished lane's state is kept, as the batched
+    while loop keeps it); whenever a ``REFILL_FRACTION`` of them has finished, their states are
+    stored and they start the next impacts; once no impact is left to start and at most
+    ``tail_lanes`` still run, those go on in ``tail_lanes`` lanes. Every operation is
+    elementwise over lanes (``lanes`` and ``tail_lanes`` whole numbers of SIMD lane groups) and
+    every impact starts through the same refill code, so an impact's bits do not depend on its
+    lane or on when it started. Returns the batch's ``LeanSolution``.
+    """
+    size = jax.tree_util.tree_leaves(y0s)[0].shape[0]
+    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0s))
+    init, running, step, finish = lane_functions(
+        term,
+        solver,
+        t0,
+        t1,
+        dt0,
+        dtype,
+        event=event,
+        stepsize_controller=stepsize_controller,
+        max_steps=max_steps,
     )
+    take = lambda tree, i: jax.tree_util.tree_map(lambda x: x[i], tree)  # noqa: E731
+
+    def where(mask, a, b):
+        return jax.tree_util.tree_map(
+            lambda u, v: jnp.where(mask.reshape(mask.shape + (1,) * (u.ndim - 1)), u, v), a, b
+        )
+
+    def store(records, states, index, mask):  # rows `index` of records <- states where mask
+        rows = jnp.where(mask, index, size)  # out of range: dropped
+        return jax.tree_util.tree_map(lambda r, x: r.at[rows].set(x, mode="drop"), records, states)
+
+    index = jnp.arange(lanes)
+    args = take(args_s, index)
+    states = jax.vmap(init)(take(y0s, index), args)
+    records = jax.tree_util.tree_map(lambda x: jnp.zeros((size,) + x.shape[1:], x.dtype), states)
+    # every impact starts through the refill below (one compiled form of its first stage)
+    carry = (states, args, index, jnp.zeros(lanes, bool), jnp.asarray(0), records)
+
+    def finished_of(states, active):
+        return active & ~jax.vmap(running)(states)
+
+    def refill_due(states, active, next_impact):
+        n_free = jnp.sum(finished_of(states, active) | ~active)
+        return (next_impact < size) & (n_free >= REFILL_FRACTION * lanes)
+
+    def tail_due(states, active, next_impact):  # few lanes left: go on with fewer lanes
+        n_running = jnp.sum(active & jax.vmap(running)(states))
+        return (next_impact >= size) & (n_running <= tail_lanes)
+
+    def cond(carry):
+        states, _, _, active, next_impact, _ = carry
+        busy = jnp.any(active & jax.vmap(running)(states)) | (next_impact < size)
+        return busy & ~tail_due(states, active, next_impact)
+
+    def step_lanes(states, args, active):
+        go = active & jax.vmap(running)(states)
+        return where(go, jax.vmap(step)(states, args), states)
+
+    def body(carry):
+        states, args, index, active, next_impact, records = carry
+
+        # step the lanes until a refill is due (the inner loop carries only the lanes: the
+        # records of the whole batch are touched once per refill)
+        def stepping(states):
+            go = jnp.any(active & jax.vmap(running)(states))
+            go = go & ~refill_due(states, active, next_impact)
+            return go & ~tail_due(states, active, next_impact)
+
+        states = jax.lax.while_loop(stepping, lambda x: step_lanes(x, args, active), states)
+        finished = finished_of(states, active)
+        free = finished | ~active
+        records = store(records, states, index, finished)
+        new = next_impact + jnp.cumsum(free) - 1
+        fill = free & (new < size)
+        rows = jnp.minimum(new, size - 1)
+        new_args = take(args_s, rows)
+        states = where(fill, jax.vmap(init)(take(y0s, rows), new_args), states)
+        args = where(fill, new_args, args)
+        index = jnp.where(fill, new, index)
+        active = (active & ~finished) | fill
+        next_impact = jnp.minimum(next_impact + jnp.sum(free), size)
+        return states, args, index, active, next_impact, records
+
+    states, args, index, active, _, records = jax.lax.while_loop(cond, body, carry)
+    # The tail: the impacts still running, gathered into `tail_lanes` lanes (the slowest
+    # impacts of a batch would otherwise keep every lane stepping).
+    records = store(records, states, index, finished_of(states, active))
+    active = active & jax.vmap(running)(states)
+    order = jnp.argsort(~active, stable=True)[:tail_lanes]  # the running lanes first
+    states, args, index, active = take((states, args, index, active), order)
+    states = jax.lax.while_loop(
+        lambda x: jnp.any(active & jax.vmap(running)(x)),
+        lambda x: step_lanes(x, args, active),
+        states,
+    )
+    records = store(records, states, index, active)
+    return jax.vmap(finish)(records, args_s)

@@ -715,7 +715,7 @@ _STIFFNESS: list = []  # the jitted stiffness estimate, made on first use (jax i
 # How the sweep's program solves a chunk: the batch path of ``jaximpact.simulate`` (its
 # ``_simulate``), so that a sweep gives simulate's bits. ``loop``: simulate's choice for
 # concrete inputs (a sweep never differentiates).
-_LOOP = "lean"
+_LOOP = "pool"
 
 
 def _runner(terms, cfg, devices):
