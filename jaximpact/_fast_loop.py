@@ -20,7 +20,8 @@ It is forward-only (a plain ``lax.while_loop``): ``_simulate`` uses it only for 
 (and the sweep, which never differentiates), so ``jax.grad``/``jax.jacfwd`` and traced inputs
 go through ``diffeqsolve``. Its outputs, step counts and failure statuses are bitwise
 ``diffeqsolve``'s (tests/test_throughput_paths.py, float64 and float32, both programs); it runs
-1.2-1.6x as many impacts per second (BENCHMARKS.md, "Throughput (issue 12)").
+1.2-1.5x as many impacts per second (BENCHMARKS.md, "Throughput (issue 12)"). float32 batches
+run through :func:`solve_pool`, which refills finished lanes.
 """
 
 import diffrax

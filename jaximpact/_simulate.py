@@ -560,8 +560,8 @@ def _simulate_flat(
         # float32: lanes that take the next impact as theirs finish, on each device's part of
         # the batch (``_fast_loop.solve_pool``), for every batch size alike. Measured (issue
         # 12): 9-12x the chunked loop on slow impacts near capture, where a few grazing ones
-        # take 40x the median steps; 1.09x on the oblique benchmark. Not for float64, where
-        # it ran 0.86-0.93x the chunked loop on that benchmark (1.31x near capture).
+        # take 40x the median steps; 0.95-1.01x on the oblique benchmark. Not for float64,
+        # where it ran 0.86-0.93x the chunked loop on that benchmark (1.31x near capture).
         tail = -(-width // (TAIL_FRACTION * group)) * group
         parts = jax.tree_util.tree_map(lambda x: x.reshape(shards, per), inputs)
         out = jax.vmap(lambda xs: _solve_pooled(terms, cfg, xs, width, tail))(parts)
@@ -673,11 +673,13 @@ def _simulate(
 ):
     """``simulate`` with the batch path's private settings: ``chunk``, lanes per device in one
     vmapped solve (default ``_default_chunk``; 0: the whole batch in one, as before issue 12);
-    ``loop``: the step loop, ``"lean"`` (``_fast_loop``: forward only, so used only where every
-    input is concrete) or ``"diffrax"`` (``diffeqsolve``); default (None): lean where every
-    input is concrete, so that ``jax.grad``, ``jax.jacfwd`` and traced inputs go through
-    ``diffeqsolve``. Both give the same bits (tests/test_throughput_paths.py); the lean loop
-    runs 1.2-1.6x as many impacts per second (BENCHMARKS.md, "Throughput (issue 12)")."""
+    ``loop``: the step loop, ``"lean"`` (``_fast_loop``, chunked: forward only, so used only
+    where every input is concrete), ``"pool"`` (the lean loop with lanes refilled as impacts
+    finish; float32 only, else ``"lean"``) or ``"diffrax"`` (``diffeqsolve``); default (None):
+    ``"pool"`` where every input is concrete, so that ``jax.grad``, ``jax.jacfwd`` and traced
+    inputs go through ``diffeqsolve``. The lean loop gives diffeqsolve's bits and runs 1.2-1.5x
+    as many impacts per second; the pool 9-12x on slow float32 impacts near capture, not
+    bit for bit (tests/test_throughput_paths.py; BENCHMARKS.md, "Throughput (issue 12)")."""
     speed = scene.impact.speed if speed is None else speed
     angle_deg = scene.impact.angle_deg if angle_deg is None else angle_deg
     omega0 = scene.impact.omega0 if omega0 is None else omega0
