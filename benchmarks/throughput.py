@@ -692,6 +692,7 @@ def scipy_ratio(n=20000, n_scipy=30):
 def profile_worker(cfg):
     """Runs in the subprocess: where a lane-step's time goes, one chunk on one device."""
     import jax
+    from _common import median_time
 
     jax.config.update("jax_enable_x64", cfg["x64"])
     import jaximpact as ji
@@ -705,20 +706,11 @@ def profile_worker(cfg):
             sim._simulate(scene, sp, an, om, chunk=0, loop=loop)
         )
         res = call()
-        out[loop] = median_time_of(call, cfg["repeats"])
+        out[loop] = median_time(call, cfg["repeats"])
     steps = np.asarray(res.steps)
     out["steps_max"], out["steps_sum"] = int(steps.max()), int(steps.sum())
     out["field"] = rhs_cost(scene, sp, an, om, out["steps_max"])
     print("RESULT " + json.dumps(out), flush=True)
-
-
-def median_time_of(call, repeats):
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 def profile(lanes=8192, repeats=5):
