@@ -55,11 +55,12 @@ def supported(solver, controller, event) -> bool:
     )
 
 
-def lane_functions(term, solver, t0, t1, dt0, dtype, *, event, stepsize_controller, max_steps):
+def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller, max_steps):
     """The pieces of one lane's solve: ``init(y0, args) -> state``, ``running(state)``,
     ``step(state, args) -> state`` and ``finish(state, args) -> LeanSolution``, called in
     that order they are :func:`diffeqsolve_lean`; :func:`solve_pool` calls them on lanes
-    that change impacts."""
+    that change impacts. ``y0``: an initial state (or a batch of them), for its float type."""
+    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
     t0, t1, dt0 = (jnp.asarray(x, dtype) for x in (t0, t1, dt0))
     controller = stepsize_controller
     cond_fn = event.cond_fn
@@ -178,20 +179,10 @@ def lane_functions(term, solver, t0, t1, dt0, dtype, *, event, stepsize_controll
     return init, running, step, finish
 
 
-def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, *, event, stepsize_controller, max_steps):
-    """One solve (one lane; ``vmap`` it), as ``diffrax.diffeqsolve(..., throw=False)``."""
-    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
-    init, running, step, finish = lane_functions(
-        term,
-        solver,
-        t0,
-        t1,
-        dt0,
-        dtype,
-        event=event,
-        stepsize_controller=stepsize_controller,
-        max_steps=max_steps,
-    )
+def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, **options):
+    """One solve (one lane; ``vmap`` it), as ``diffrax.diffeqsolve(..., throw=False)``.
+    ``options``: ``event``, ``stepsize_controller``, ``max_steps``."""
+    init, running, step, finish = lane_functions(term, solver, t0, t1, dt0, y0, **options)
     s = jax.lax.while_loop(running, lambda s: step(s, args), init(y0, args))
     return finish(s, args)
 
@@ -202,21 +193,7 @@ def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, *, event, stepsize_con
 REFILL_FRACTION = 1 / 8
 
 
-def solve_pool(
-    term,
-    solver,
-    t0,
-    t1,
-    dt0,
-    y0s,
-    args_s,
-    *,
-    event,
-    stepsize_controller,
-    max_steps,
-    lanes,
-    tail_lanes,
-):
+def solve_pool(term, solver, t0, t1, dt0, y0s, args_s, *, lanes, tail_lanes, **options):
     """Solve a batch of impacts (the leading axis of ``y0s`` and ``args_s``) with ``lanes``
     lane slots that each take the next impact when theirs has finished.
 
@@ -228,21 +205,11 @@ def solve_pool(
     ``tail_lanes`` still run, those go on in ``tail_lanes`` lanes. Every operation is
     elementwise over lanes (``lanes`` and ``tail_lanes`` whole numbers of SIMD lane groups) and
     every impact starts through the same refill code, so an impact's bits do not depend on its
-    lane or on when it started. Returns the batch's ``LeanSolution``.
+    lane or on when it started. ``options``: as :func:`diffeqsolve_lean`'s. Returns the
+    batch's ``LeanSolution``.
     """
     size = jax.tree_util.tree_leaves(y0s)[0].shape[0]
-    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0s))
-    init, running, step, finish = lane_functions(
-        term,
-        solver,
-        t0,
-        t1,
-        dt0,
-        dtype,
-        event=event,
-        stepsize_controller=stepsize_controller,
-        max_steps=max_steps,
-    )
+    init, running, step, finish = lane_functions(term, solver, t0, t1, dt0, y0s, **options)
     take = lambda tree, i: jax.tree_util.tree_map(lambda x: x[i], tree)  # noqa: E731
 
     def where(mask, a, b):
