@@ -29,9 +29,11 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
-import optimistix as optx
+import numpy as np
 from diffrax import RESULTS
 from diffrax._solution import is_okay, is_successful
+
+from . import _event
 
 
 class LeanSolution(eqx.Module):
@@ -61,13 +63,14 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
     that order they are :func:`diffeqsolve_lean`; :func:`solve_pool` calls them on lanes
     that change impacts. ``y0``: an initial state (or a batch of them), for its float type."""
     dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
+    # diffrax's clip of the last step to t1 (a constant here: t1 is a Python number)
+    t1_clip_floor = np.asarray(t1, dtype)
+    for _ in range(100):
+        t1_clip_floor = np.nextafter(t1_clip_floor, np.asarray(-np.inf, dtype))
     t0, t1, dt0 = (jnp.asarray(x, dtype) for x in (t0, t1, dt0))
     controller = stepsize_controller
     cond_fn = event.cond_fn
     error_order = solver.error_order(term)
-    t1_clip_floor = t1
-    for _ in range(100):
-        t1_clip_floor = eqxi.prevbefore(t1_clip_floor)
 
     def init(y0, args):
         tnext, controller_state = controller.init(
@@ -146,24 +149,21 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
             )
             interp = solver.interpolation_cls(t0=s["ev_tprev"], t1=s["ev_tnext"], **dense_info)
 
-            def fn(t, _):
-                value = jax.lax.cond(
-                    happened, lambda: cond_fn(t, interp.evaluate(t), args), lambda: 0.0
-                )
-                return jnp.where(happened, value, s["ev_tnext"] - t)
+            def event_value(t, y):  # lanes without an event: the end of the step
+                return jnp.where(happened, cond_fn(t, y, args), s["ev_tnext"] - t)
 
-            sol = optx.root_find(
-                fn,
-                event.root_finder,
-                y0=s["ev_tnext"],
-                options=dict(lower=s["ev_tprev"], upper=s["ev_tnext"]),
-                throw=False,
+            t_event, y, found = _event.locate(
+                interp.evaluate,
+                event_value,
+                s["ev_tprev"],
+                s["ev_tnext"],
+                event.root_finder.rtol,
+                event.root_finder.atol,
             )
-            y = jax.lax.cond(
-                s["num_steps"] == 0, lambda: s["y"], lambda: interp.evaluate(sol.value)
+            y = jax.tree_util.tree_map(
+                lambda a, b: jnp.where(s["num_steps"] == 0, a, b), s["y"], y
             )
-            ok = sol.result == optx.RESULTS.successful
-            return sol.value, y, RESULTS.where(ok, result, RESULTS.promote(sol.result))
+            return t_event, y, RESULTS.where(found, result, RESULTS.nonlinear_divergence)
 
         tfinal, yfinal, result = jax.lax.cond(
             eqxi.unvmap_any(happened), root_find, lambda: (s["tprev"], s["y"], result)
