@@ -144,7 +144,9 @@ def cmd_simulate(args) -> int:
             write_results(args.output, table.as_columns(), columns)
         except OSError as err:
             raise write_failed(args.output, err) from None
-    shown = {**table.as_columns(), **columns}
+    # Every impact input, given or defaulted (an impacts file may leave out omega0).
+    inputs = {"speed": table.speed, "angle_deg": table.angle_deg, "omega0": table.omega0}
+    shown = {**inputs, **table.overrides, **columns}
     reasons = columns["failure_reason"]
     n, failed = len(table.speed), int(np.sum(reasons != ""))
     names = list(SHOWN_COLUMNS) + (["failure_reason"] if failed else [])

@@ -241,3 +241,24 @@ def test_sweep_takes_an_embedded_scene_by_name(tmp_path):
     table = pq.read_table(out)  # a plain Parquet reader opens the directory
     assert table.column("speed").to_pylist() == [3.9, 3.9]  # the scene's [impact] speed
     assert table.schema.field("vt_out").metadata == {b"unit": b"m/s"}
+
+
+# ---------------------------------------------------------------------------------------------
+# Issue 24: tried again as a new user would.
+
+
+def test_impacts_file_without_omega0_prints_and_writes(tmp_path):
+    """Item 1: an impacts CSV without the optional omega0 column (it crashed the table
+    printer with KeyError after writing -o)."""
+    impacts = tmp_path / "imp.csv"
+    impacts.write_text("speed,angle_deg\n1.0,30\n2.0,0\n")
+    out = tmp_path / "r.csv"
+    proc = run("simulate", "table1", "--impacts", impacts, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    res = read_results(out)
+    assert list(res)[:3] == ["speed", "angle_deg", "status"]  # the columns as given
+    assert list(res["status"]) == ["rebound", "rebound"]
+    header, _, first, second = proc.stdout.splitlines()[1:5]
+    assert header.split()[:3] == ["speed", "angle_deg", "omega0"]
+    assert first.split()[:4] == ["1", "30", "0", "rebound"]  # omega0 shown as its default
+    assert second.split()[:4] == ["2", "0", "0", "rebound"]
