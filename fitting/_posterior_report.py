@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import secrets
 from pathlib import Path
 
 import numpy as np
+
+from jaximpact._paths import atomic_output
 
 from ._data import OBSERVABLES
 from ._objective import FitError
@@ -121,15 +121,8 @@ def write_draws(path, result: PosteriorResult) -> None:
         sample_stats={"lp": result.log_density},
         attrs={"likelihood": result.likelihood, "status": result.status},
     )
-    path = Path(path)
-    temp = path.with_name(f".{path.stem}.{secrets.token_hex(6)}.tmp{path.suffix}")
-    try:
+    with atomic_output(path, "draws file") as temp:
         data.to_netcdf(str(temp))
-        os.replace(temp, path)
-    except BaseException:
-        if temp.exists():
-            temp.unlink()
-        raise
 
 
 def read_draws(path, names) -> np.ndarray:

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import secrets
 from pathlib import Path
 
 import numpy as np
 
+from jaximpact._paths import atomic_output
 from jaximpact.tables import atomic_write_text
 
 from ._data import OBSERVABLES
@@ -258,11 +257,7 @@ def _curves(obs, x_is_angle, points=60, max_curves=8):
 
 
 def _atomic_savefig(fig, path: Path) -> None:
-    temp = path.with_name(f".{path.stem}.{secrets.token_hex(6)}.tmp{path.suffix}")
-    try:
-        fig.savefig(temp, dpi=120)
-        os.replace(temp, path)
-    except BaseException:
-        if temp.exists():
-            temp.unlink()
-        raise
+    """``fig.savefig`` atomically, through a symbolic link to its target (never over a device,
+    a pipe or a directory: ``FileProblem``)."""
+    with atomic_output(path, "plot") as temp:
+        fig.savefig(temp, dpi=120, bbox_inches="tight")

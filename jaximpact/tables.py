@@ -36,6 +36,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pv
 
+from ._paths import keep_mode, output_target
+
 __all__ = [
     "IMPACT_COLUMNS",
     "IMPACT_PARAMETER_COLUMNS",
@@ -560,7 +562,9 @@ def atomic_write_bytes(path, data: bytes) -> None:
 
     The data goes to a temporary file in the same directory (so the final rename stays on one
     file system), is flushed and fsynced, then renamed over ``path`` with :func:`os.replace`.
-    On any exception the temporary file is removed and ``path`` is left as it was.
+    On any exception the temporary file is removed and ``path`` is left as it was. Where
+    ``path`` is a symbolic link, the file it leads to is written (in that file's directory)
+    and the link is kept; a file replaced keeps its permission bits.
 
     Arguments:
         path: the destination file.
@@ -568,8 +572,10 @@ def atomic_write_bytes(path, data: bytes) -> None:
 
     Raises:
         OSError: the directory is missing or not writable, or the disk is full.
+        FileProblem: (a ``ValueError``) ``path`` is, or links to, something other than a
+            regular file or a new path (a directory, a device, a pipe, a socket).
     """
-    path = Path(path)
+    path = output_target(path)  # through a symbolic link; never over a device or a pipe
     temp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
     # O_EXCL: never reuse someone else's file; mode 0o666 lets the umask decide permissions,
     # as for any ordinarily created file (tempfile.mkstemp would force 0o600).
@@ -579,6 +585,7 @@ def atomic_write_bytes(path, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        keep_mode(path, temp)
         os.replace(temp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

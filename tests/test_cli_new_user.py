@@ -262,3 +262,69 @@ def test_impacts_file_without_omega0_prints_and_writes(tmp_path):
     assert header.split()[:3] == ["speed", "angle_deg", "omega0"]
     assert first.split()[:4] == ["1", "30", "0", "rebound"]  # omega0 shown as its default
     assert second.split()[:4] == ["2", "0", "0", "rebound"]
+
+
+def test_output_through_a_symbolic_link_keeps_the_link(tmp_path):
+    """Item 5: -o LINK writes the link's target, atomically in the target's directory; the
+    link stays a link, and the replaced file keeps its permissions."""
+    from jaximpact.tables import write_results
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    target = tmp_path / "b" / "target.csv"
+    target.write_text("old\n")
+    target.chmod(0o640)
+    link = tmp_path / "a" / "link.csv"
+    link.symlink_to(target)
+    results = {n: [0.0] for n in RESULT_COLUMNS}
+    results.update(status=["rebound"], failure_reason=[""])
+    write_results(link, {"speed": [1.0], "angle_deg": [0.0]}, results)
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert read_results(link)["speed"][0] == 1.0 and read_results(target)["speed"][0] == 1.0
+    assert (target.stat().st_mode & 0o777) == 0o640
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["link.csv"]
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["target.csv"]
+    # A link to a file not yet created: the file is created where the link points.
+    new = tmp_path / "b" / "new.csv"
+    (tmp_path / "a" / "dangling.csv").symlink_to(new)
+    write_results(tmp_path / "a" / "dangling.csv", {"speed": [2.0], "angle_deg": [0.0]}, results)
+    assert (tmp_path / "a" / "dangling.csv").is_symlink() and read_results(new)["speed"][0] == 2.0
+    # A plot written through a link as well.
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from fitting._report import _atomic_savefig
+
+    picture = tmp_path / "b" / "fig.png"
+    picture.write_bytes(b"")
+    (tmp_path / "a" / "fig.png").symlink_to(picture)
+    fig = plt.figure()
+    _atomic_savefig(fig, tmp_path / "a" / "fig.png")
+    plt.close(fig)
+    assert (tmp_path / "a" / "fig.png").is_symlink()
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_outputs_that_are_not_regular_files_are_refused(tmp_path):
+    """Item 5: a pipe (or a link to one, or a device) is never replaced by a results file:
+    exit 2, one line naming the path, before computing."""
+    from jaximpact._paths import FileProblem, output_target
+
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    link = tmp_path / "link.csv"
+    link.symlink_to(fifo)
+    loop = tmp_path / "loop.csv"
+    loop.symlink_to(loop)
+    for path, words in ((fifo, "is a pipe"), (link, "is a pipe (a link to")):
+        line = one_line_error(run("simulate", "-o", path))
+        assert str(path) in line and words in line and "regular file" in line, line
+        assert fifo.is_fifo() and link.is_symlink()
+    with pytest.raises(FileProblem, match="is a device"):
+        output_target("/dev/null", "results CSV")
+    with pytest.raises(FileProblem, match="never ends"):
+        output_target(loop)
+    line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "--plot", fifo))
+    assert str(fifo) in line and "is a pipe" in line and fifo.is_fifo()
