@@ -256,8 +256,34 @@ def _curves(obs, x_is_angle, points=60, max_curves=8):
     return curves
 
 
+def plot_formats() -> dict[str, str]:
+    """The image formats a plot can be written in: ``{suffix: description}`` (matplotlib's)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return dict(FigureCanvasBase.get_supported_filetypes())
+
+
+def check_plot_path(path, option: str) -> None:
+    """Refuse a plot file whose suffix names no image format matplotlib writes, before
+    anything is computed.
+
+    Raises:
+        FitError: naming the option, the file and the formats there are.
+    """
+    from ._objective import FitError
+
+    suffix = Path(path).suffix.lower().lstrip(".")
+    formats = plot_formats()
+    if suffix not in formats:
+        found = f"unknown image format '.{suffix}'" if suffix else "no file suffix"
+        raise FitError(
+            f"{option} {path}: {found}; the suffix names the format, one of: "
+            + ", ".join(sorted(formats))
+        )
+
+
 def _atomic_savefig(fig, path: Path) -> None:
     """``fig.savefig`` atomically, through a symbolic link to its target (never over a device,
-    a pipe or a directory: ``FileProblem``)."""
+    a pipe or a directory: ``FileProblem``); the format is the file's suffix."""
     with atomic_output(path, "plot") as temp:
-        fig.savefig(temp, dpi=120, bbox_inches="tight")
+        fig.savefig(temp, dpi=120, bbox_inches="tight", format=Path(path).suffix[1:].lower())

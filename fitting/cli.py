@@ -166,7 +166,7 @@ def cmd_fit(args) -> int:
 
     from ._fit import fit
     from ._objective import FitError, check_names
-    from ._report import plot_fit, result_dict, summary, write_json_dict
+    from ._report import check_plot_path, plot_fit, result_dict, summary, write_json_dict
 
     if len(args.files) > 2:
         raise FitError(f"expected [SCENE] DATA, got {len(args.files)} files")
@@ -216,6 +216,14 @@ def cmd_fit(args) -> int:
 
         priors_for(names, priors, scene.priors)
     # Outputs are checked before the fit: a typo in -o must not cost the computation.
+    for option, path in (
+        ("--plot", args.plot),
+        ("--profile-plot", args.profile_plot),
+        ("--corner", args.corner),
+        ("--predictive", args.predictive),
+    ):
+        if path:
+            check_plot_path(path, option)
     for path, what in (
         (args.output, "fit JSON"),
         (args.plot, "plot"),

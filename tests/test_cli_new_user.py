@@ -328,3 +328,19 @@ def test_outputs_that_are_not_regular_files_are_refused(tmp_path):
         output_target(loop)
     line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "--plot", fifo))
     assert str(fifo) in line and "is a pipe" in line and fifo.is_fifo()
+
+
+def test_plot_format_checked_before_the_fit(tmp_path):
+    """Item 6: `--plot fit.xyz` ran the whole fit and wrote the JSON before matplotlib refused
+    the format; now exit 2 at once, one line naming the option, the file and the formats."""
+    out = tmp_path / "fit.json"
+    for option, name in (("--plot", "fit.xyz"), ("--plot", "fit"), ("--profile-plot", "p.bad")):
+        extra = ("--profile", "friction") if option == "--profile-plot" else ()
+        start = time.perf_counter()
+        proc = run(
+            "fit", "kharaz2001", "--params", "friction", "-o", out, option, tmp_path / name, *extra
+        )
+        line = one_line_error(proc)
+        assert f"{option} {tmp_path / name}" in line and "png" in line and "pdf" in line, line
+        assert time.perf_counter() - start < 60  # before compiling anything
+        assert not out.exists()
