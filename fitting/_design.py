@@ -22,6 +22,7 @@ dropped before the choice, and counted in the result.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -29,7 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 
 import jaximpact
-from jaximpact.tables import ImpactTable, atomic_write_text, read_impacts, readonly_array
+from jaximpact._ranges import IMPLAUSIBLE, implausible
+from jaximpact.tables import (
+    ImpactTable,
+    atomic_write_text,
+    number_text,
+    read_impacts,
+    readonly_array,
+)
 
 from ._data import OBSERVABLES, Observations
 from ._objective import FitError, Objective, check_names, default_scales, get_parameter
@@ -59,6 +67,9 @@ class DesignResult:
         sigma: ``(n_candidates, k)`` the noise assumed for each candidate's observables.
         draws: number of parameter draws the information was averaged over (0: a point
             design at the scene's values); ``information`` is then the mean over them.
+        implausible: indices of the candidates whose impact is physically implausible at the
+            scene's values (``jaximpact._ranges.implausible``: an elastic Hertz overlap above
+            0.1 of the radius); kept, but warned about.
     """
 
     params: tuple[str, ...]
@@ -74,6 +85,18 @@ class DesignResult:
     ridge: float
     sigma: np.ndarray
     draws: int = 0
+    implausible: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, int))
+
+    def warnings(self) -> list[str]:
+        """Warnings about the candidates (physically implausible impacts)."""
+        if not len(self.implausible):
+            return []
+        chosen = int(np.isin(self.chosen, self.implausible).sum())
+        return [
+            f"{len(self.implausible)} of {len(self.candidates)} candidate impacts are physically "
+            f"implausible at the scene's values ({IMPLAUSIBLE['large_overlap']}; elastic Hertz "
+            f"estimate); {chosen} of them chosen"
+        ]
 
     def message(self) -> str:
         where = (
@@ -201,13 +224,13 @@ def design(
         if o not in observables:
             raise FitError(f"sigma given for {o!r}, which is not among the observables")
         if not (math.isfinite(s) and s > 0):
-            raise FitError(f"sigma of {o} must be finite and > 0, got {s!r}")
+            raise FitError(f"sigma of {o} must be finite and > 0, got {number_text(s)}")
     if not (isinstance(n, int | np.integer) and n >= 1):
-        raise FitError(f"n must be an integer >= 1, got {n!r}")
+        raise FitError(f"n must be an integer >= 1, got {number_text(n)}")
     if not (ridge > 0 and math.isfinite(ridge)):
-        raise FitError(f"ridge must be > 0, got {ridge!r}")
+        raise FitError(f"ridge must be > 0, got {number_text(ridge)}")
     if not 0 < perturbation < 1:
-        raise FitError(f"perturbation must be in (0, 1), got {perturbation!r}")
+        raise FitError(f"perturbation must be in (0, 1), got {number_text(perturbation)}")
     source = ""
     if not isinstance(candidates, ImpactTable):
         source = str(candidates)
@@ -289,6 +312,17 @@ def design(
         ridge=ridge_abs,
         sigma=scale.reshape(n_cand, len(observables)),
         draws=0 if at_draws is None else len(at_draws),
+        implausible=np.flatnonzero(
+            implausible(
+                get_parameter(scene, "radius"),
+                np.nan,
+                get_parameter(scene, "density"),
+                get_parameter(scene, "K"),
+                candidates.speed,
+                candidates.angle_deg,
+            )
+            != ""
+        ),
     )
 
 
@@ -307,7 +341,7 @@ def _draw_subset(draws, names, max_draws: int):
     if not np.all(np.isfinite(draws)):
         raise FitError("draws must be finite")
     if not (isinstance(max_draws, int | np.integer) and max_draws >= 1):
-        raise FitError(f"max_draws must be an integer >= 1, got {max_draws!r}")
+        raise FitError(f"max_draws must be an integer >= 1, got {number_text(max_draws)}")
     pick = np.linspace(0, len(draws) - 1, min(max_draws, len(draws))).round().astype(int)
     return draws[pick]
 

@@ -39,6 +39,8 @@ from tqdm.auto import tqdm
 
 import jaximpact
 from jaximpact._cache import runtime_checks_as_nan
+from jaximpact._ranges import IMPLAUSIBLE, RANGES, implausible
+from jaximpact.tables import number_text
 
 from ._lm import levenberg_marquardt
 from ._objective import FitError, Objective, check_names, get_parameter
@@ -313,11 +315,11 @@ def fit(
     if jacobian not in JACOBIAN_MODES:
         raise FitError(f"jacobian must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
     if not (isinstance(starts, int) and starts >= 1):
-        raise FitError(f"starts must be an integer >= 1, got {starts!r}")
+        raise FitError(f"starts must be an integer >= 1, got {number_text(starts)}")
     if not (isinstance(max_steps, int) and max_steps >= 1):
-        raise FitError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+        raise FitError(f"max_steps must be an integer >= 1, got {number_text(max_steps)}")
     if not spread > 1:
-        raise FitError(f"spread must be > 1, got {spread!r}")
+        raise FitError(f"spread must be > 1, got {number_text(spread)}")
     initial = dict(initial or {})
     for name in initial:
         if name not in names:
@@ -423,6 +425,24 @@ def fit(
             "show rebounding (stuck in the capture region: start with less adhesion or "
             "damping, or use more starts)",
         )
+    # A fitted value outside its documented range (a log-scale parameter has no upper end):
+    # not an answer; the result's scene holds the nearest value inside, for reports and plots.
+    outside = {nm: v for nm, v in best.values.items() if not RANGES[nm].contains(v)}
+    for nm, v in outside.items():
+        problems.append(
+            f"{nm} = {v:.4g} left its documented range {RANGES[nm].interval()} "
+            "(docs/input_ranges.md)"
+        )
+    scene_values = {
+        nm: float(np.clip(v, RANGES[nm].lo, RANGES[nm].hi)) if nm in outside else v
+        for nm, v in best.values.items()
+    }
+    implausible_at = _implausible_impacts(objective, objective.scene_at(scene_values))
+    if implausible_at:
+        warnings.append(
+            f"physically implausible at {implausible_at} of {objective._speed.size} impact(s): "
+            f"{IMPLAUSIBLE['large_overlap']} (elastic Hertz estimate at the fitted values)"
+        )
     for i, nm in enumerate(names):
         if nm in BOUNDS:
             lo, hi = BOUNDS[nm]
@@ -436,7 +456,7 @@ def fit(
                 f"{n_conv} of {starts} starts converged, not all to the same minimum "
                 f"(costs {min(spread_costs):.6g} .. {max(spread_costs):.6g})"
             )
-    if not best.converged or n_failed or n_captured:
+    if not best.converged or n_failed or n_captured or outside:
         status_name = "not converged"
     elif d["undetermined"]:
         status_name = "undetermined"
@@ -465,7 +485,7 @@ def fit(
         solver=solver,
         starts=[run[0] for run in runs],
         residuals=residuals,
-        scene=objective.scene_at(best.values),
+        scene=objective.scene_at(scene_values),
         objective=objective,
         message=message,
         status=status_name,
@@ -498,6 +518,30 @@ def _physical(names, u) -> dict[str, float]:
         else:
             out[name] = float(math.exp(x))
     return out
+
+
+def _implausible_impacts(objective: Objective, scene) -> int:
+    """How many of the data's impacts the fitted scene makes physically implausible
+    (``jaximpact._ranges.implausible``, from the elastic Hertz estimate of the overlap)."""
+    imp = objective.observations.impacts
+    n = imp.speed.size
+
+    def value(name, section, field):
+        given = imp.overrides.get(name)
+        return np.broadcast_to(
+            given if given is not None else np.asarray(getattr(getattr(scene, section), field)),
+            (n,),
+        )
+
+    flags = implausible(
+        value("radius", "particle", "radius"),
+        np.full(n, np.nan),
+        value("density", "particle", "density"),
+        value("K", "contact", "K"),
+        imp.speed,
+        imp.angle_deg,
+    )
+    return int(np.sum(flags != ""))
 
 
 def _capture_mismatch(objective: Objective, status) -> int:

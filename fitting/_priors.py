@@ -5,7 +5,8 @@ so every prior here is the density of ``u``: the density of ``p`` times ``|dp/du
 Jacobian term of the change of variables).
 
 Default: log-uniform over :data:`PRIOR_RANGES`, a documented physical range wide enough for
-any microsphere or millimetre sphere (docs/posterior.md); a log-uniform prior is flat in
+any microsphere or millimetre sphere (docs/posterior.md), inside each parameter's documented
+input range (docs/input_ranges.md), as every prior given must be; a log-uniform prior is flat in
 ``u = ln p``, so it adds nothing to the gradient inside the range and ``-inf`` outside.
 """
 
@@ -16,6 +17,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import jax.numpy as jnp
+
+from jaximpact._ranges import RANGES
 
 from ._objective import FitError
 from ._transforms import BOUNDS
@@ -95,6 +98,16 @@ def parse_prior(name: str, text: str, where: str | None = None) -> Prior:
         raise FitError(f"{where}: loguniform needs 0 < LO < HI, got {text!r}")
     if kind == "normal" and not b > 0:
         raise FitError(f"{where}: normal needs SD > 0, got {text!r}")
+    # The prior lives inside the documented range of the parameter (docs/input_ranges.md),
+    # as every value a simulation accepts.
+    allowed = RANGES[name]
+    ends = (a, b) if kind == "loguniform" else (a,)
+    if not all(allowed.contains(x) for x in ends):
+        what = "LO and HI" if kind == "loguniform" else "MU"
+        raise FitError(
+            f"{where}: {what} of {text!r} must lie in the documented range of {name}, "
+            f"{allowed.interval()} (docs/input_ranges.md)"
+        )
     return Prior(kind, a, b)
 
 

@@ -32,6 +32,11 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
+def _count(n: int, noun: str) -> str:
+    """``1 observation``, ``2 observations``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def result_dict(result: FitResult) -> dict:
     """The fit as a JSON-ready dict.
 
@@ -118,7 +123,7 @@ def summary(result: FitResult) -> str:
     """A readable multi-line summary: status, values with standard errors and sensitivities,
     rank, condition number, goodness of fit, problems, warnings, timings."""
     lines = [
-        f"fit of {', '.join(result.params)} to {result.n_data} observations "
+        f"fit of {', '.join(result.params)} to {_count(result.n_data, 'observation')} "
         f"({result.objective.observations.source}); solver {result.solver}, "
         f"{len(result.starts)} start(s)",
         f"status: {_STATUS_LINE.get(result.status, result.status)}",

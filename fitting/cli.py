@@ -47,17 +47,19 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "files",
-        nargs="+",
+        nargs="*",
         metavar="[SCENE] DATA",
         help="optional scene (name or TOML file; default: the data set's own, else table1), "
-        "then the observations (embedded name or CSV file)",
+        "then the observations (embedded name or CSV file); give them before the options",
     )
     p.add_argument(
         "--params",
         nargs="+",
         required=True,
         metavar="NAME",
-        help="parameters to fit: C_A C_H f0 friction K G_star lambda radius density",
+        help="parameters to fit, as a comma list (friction,G_star) or separate words "
+        "(friction G_star: then put [SCENE] DATA before --params, which takes every word up to "
+        "the next option); from C_A C_H f0 friction K G_star lambda radius density",
     )
     p.add_argument(
         "-o", "--output", metavar="FIT.json", help="write the result as JSON (atomically)"
@@ -133,6 +135,46 @@ def _parse_init(items) -> dict[str, float]:
     return out
 
 
+def _looks_positional(item: str) -> bool:
+    """Whether a word an option took looks like a SCENE or DATA argument instead."""
+    import os
+
+    import jaximpact
+
+    return (
+        item in EMBEDDED_DATA
+        or item in jaximpact.embedded_scenes()
+        or item.lower().endswith((".csv", ".toml"))
+        or os.path.exists(item)
+    )
+
+
+def split_names(option: str, items, allowed, command: str = "fit") -> tuple[str, ...]:
+    """The names an option was given, as separate words or comma lists (``a,b c``).
+
+    Raises:
+        FitError: a name not in ``allowed``; where it looks like the scene or data argument
+            (the option took every word up to the next option), the message says how to give
+            them.
+    """
+    from ._objective import FitError
+
+    names = tuple(n.strip() for item in items for n in str(item).split(",") if n.strip())
+    for name in names:
+        if name not in allowed and _looks_positional(name):
+            first, example = (
+                ("the scene and data", "jaximpact fit kharaz2001 --params friction,G_star")
+                if command == "fit"
+                else ("the scene", "jaximpact design table1 --params C_A,f0 --candidates C.csv")
+            )
+            raise FitError(
+                f"{option}: {name!r} is not a name of {option} but was read as one ({option} "
+                f"takes every word up to the next option); give {first} before the options, "
+                f"or the names as one comma list: `{example}`"
+            )
+    return names
+
+
 def _kharaz2001():
     from ._data import kharaz2001_path
 
@@ -161,23 +203,41 @@ def cmd_fit(args) -> int:
     jax.config.update("jax_enable_x64", True)
 
     import jaximpact
-    from jaximpact._paths import check_readable, prepare_output, write_failed
+    from jaximpact._paths import FileProblem, check_readable, prepare_output, write_failed
     from jaximpact._scene_io import describe_scene_source
 
     from ._fit import fit
-    from ._objective import FitError, check_names
+    from ._objective import FITTABLE, FitError, check_names
     from ._report import check_plot_path, plot_fit, result_dict, summary, write_json_dict
 
+    params = split_names("--params", args.params, FITTABLE)
+    if not args.files:
+        raise FitError(
+            "missing DATA: jaximpact fit [SCENE] DATA --params NAME[,NAME...] (the data: an "
+            f"embedded data set, {', '.join(EMBEDDED_DATA)}, or a CSV file)"
+        )
     if len(args.files) > 2:
-        raise FitError(f"expected [SCENE] DATA, got {len(args.files)} files")
+        raise FitError(
+            f"expected [SCENE] DATA, got {len(args.files)} arguments: " + " ".join(args.files)
+        )
     scene_path, data_path = (None, args.files[0]) if len(args.files) == 1 else args.files
     if data_path in EMBEDDED_DATA:
         if scene_path is None and data_path in jaximpact.embedded_scenes():
             scene_path = data_path  # the data set's own scene
         data_path = EMBEDDED_DATA[data_path]()
     else:
-        check_readable(data_path, "data file")
-    names = check_names(args.params)
+        try:
+            check_readable(data_path, "data file")
+        except FileProblem as err:
+            if "not found" not in str(err):
+                raise
+            raise FileProblem(
+                data_path,
+                "data file not found (embedded data sets, by name: "
+                + ", ".join(EMBEDDED_DATA)
+                + ")",
+            ) from None
+    names = check_names(params)
     priors = _parse_priors(args.prior, names) if args.posterior else {}
     posterior_outputs = (
         (args.draws, "draws file"),
@@ -349,7 +409,14 @@ def add_design_command(subparsers) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scene", nargs="?", default=None, help="scene name or TOML (default table1)")
-    p.add_argument("--params", nargs="+", required=True, metavar="NAME")
+    p.add_argument(
+        "--params",
+        nargs="+",
+        required=True,
+        metavar="NAME",
+        help="parameters to determine, as a comma list (C_A,f0) or separate words (then put "
+        "SCENE before --params)",
+    )
     p.add_argument("--candidates", required=True, metavar="CAND.csv")
     p.add_argument("--n", type=int, required=True, help="impacts to choose")
     p.add_argument("--observables", nargs="+", default=["cor_n"], metavar="NAME")
@@ -375,11 +442,12 @@ def cmd_design(args) -> int:
     import jaximpact
     from jaximpact._paths import check_readable, prepare_output, write_failed
 
+    from ._data import OBSERVABLES
     from ._design import design, write_design
-    from ._objective import FitError, check_names
+    from ._objective import FITTABLE, FitError, check_names
     from ._posterior_report import read_draws
 
-    names = check_names(args.params)
+    names = check_names(split_names("--params", args.params, FITTABLE, "design"))
     sigma = {}
     for item in args.sigma:
         name, sep, text = item.partition("=")
@@ -402,12 +470,14 @@ def cmd_design(args) -> int:
         args.candidates,
         names,
         args.n,
-        observables=args.observables,
+        observables=split_names("--observables", args.observables, OBSERVABLES, "design"),
         sigma=sigma,
         draws=draws,
         max_draws=args.max_draws,
     )
     print(result.message())
+    for warning in result.warnings():
+        print(f"warning: {warning}", file=sys.stderr)
     for k, i in enumerate(result.chosen):
         t = result.candidates
         print(

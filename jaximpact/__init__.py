@@ -1,5 +1,7 @@
 """jaximpact: a differentiable simulator of microsphere impact (Brach, Dunn & Cheng 1999)."""
 
+from ._api import implausible_impacts as implausible_impacts
+from ._api import simulate as simulate
 from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._devices import use_all_cpu_cores as use_all_cpu_cores
 from ._results import ImpactResult as ImpactResult
@@ -24,7 +26,6 @@ from ._simulate import Integration as Integration
 from ._simulate import integration_settings as integration_settings
 from ._simulate import required_terms as required_terms
 from ._simulate import scene_parameters as scene_parameters
-from ._simulate import simulate as simulate
 from ._simulate import stiffness_estimate as stiffness_estimate
 
 __version__ = "0.1.0"

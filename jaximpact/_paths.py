@@ -78,9 +78,7 @@ def output_target(path, what: str = "output file") -> Path:
             else "not a regular file"
         )
         link = f" (a link to {target})" if target != Path(os.path.abspath(p)) else ""
-        raise FileProblem(
-            path, f"is {kind}{link}; the {what} must be a regular file or a new path"
-        )
+        raise FileProblem(path, f"is {kind}{link}; the {what} must be a regular file or a new path")
     return target
 
 

@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._ranges import RANGES, range_text
+
 INERTIA_FACTOR = 0.4  # k^2 / r^2 of a solid sphere (CONVENTIONS)
 
 RollingMoments = Literal["none", "analytical", "lambda"]
@@ -59,9 +61,27 @@ def check_range(
         )
 
 
+def check_input(field: str, name: str, value) -> None:
+    """Raise ``SceneError`` naming ``field`` if a concrete value is outside the documented
+    range of input ``name`` (``jaximpact._ranges.RANGES``; docs/input_ranges.md).
+
+    Traced values are not checked (they are checked where they were concrete).
+    """
+    if not _is_concrete(value):
+        return
+    v = np.asarray(value, dtype=float)
+    ok = RANGES[name].contains(v)
+    if not np.all(ok):
+        bad = np.flatnonzero(~np.ravel(ok))[0]
+        got = repr(float(v)) if v.ndim == 0 else f"{float(v.ravel()[bad])!r} (element {bad})"
+        raise SceneError(f"{range_text(name, field)} (docs/input_ranges.md), got {got}")
+
+
 def _show(v):
     v = np.asarray(v)
-    return repr(float(v)) if v.ndim == 0 else f"an array with min {v.min()!r}, max {v.max()!r}"
+    if v.ndim == 0:
+        return repr(float(v))
+    return f"an array with min {float(v.min())!r}, max {float(v.max())!r}"
 
 
 class Particle(eqx.Module):
@@ -71,8 +91,8 @@ class Particle(eqx.Module):
     density: jax.Array = eqx.field(converter=_array)
 
     def __check_init__(self):
-        check_range("particle.radius", self.radius, positive=True)
-        check_range("particle.density", self.density, positive=True)
+        check_input("particle.radius", "radius", self.radius)
+        check_input("particle.density", "density", self.density)
 
     @property
     def mass(self):
@@ -101,9 +121,8 @@ class Contact(eqx.Module):
     G_star: jax.Array = eqx.field(converter=_array, default=0.0)
 
     def __check_init__(self):
-        check_range("contact.K", self.K, positive=True)
-        for name in ("f0", "C_A", "C_H", "friction", "G_star"):
-            check_range(f"contact.{name}", getattr(self, name), nonnegative=True)
+        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star"):
+            check_input(f"contact.{name}", name, getattr(self, name))
 
 
 class Model(eqx.Module):
@@ -146,7 +165,7 @@ class Model(eqx.Module):
         for name in ("rotation", "adhesion"):
             if not isinstance(getattr(self, name), bool):
                 raise SceneError(f"model.{name} must be true or false, got {getattr(self, name)!r}")
-        check_range("model.lambda", self.lambda_, nonnegative=True)
+        check_input("model.lambda", "lambda", self.lambda_)
 
 
 class Impact(eqx.Module):
@@ -162,10 +181,78 @@ class Impact(eqx.Module):
 
 
 def check_impact(speed, angle_deg, omega0, prefix=""):
-    """Validate concrete impact inputs (raises ``SceneError`` naming the field)."""
-    check_range(f"{prefix}speed", speed, positive=True)
-    check_range(f"{prefix}angle_deg", angle_deg, lower=-90.0, upper=90.0, upper_inclusive=False)
-    check_range(f"{prefix}omega0", omega0)
+    """Validate concrete impact inputs against their documented ranges (raises ``SceneError``
+    naming the field and the range)."""
+    check_input(f"{prefix}speed", "speed", speed)
+    check_input(f"{prefix}angle_deg", "angle_deg", angle_deg)
+    check_input(f"{prefix}omega0", "omega0", omega0)
+
+
+def _argument_shape(name: str, value) -> tuple:
+    """The shape of an impact argument of ``simulate``, refusing what is not numbers."""
+    wrong = f"{name} must be a number or an array of numbers"
+    if isinstance(value, (str, bytes)):
+        raise SceneError(f"{wrong}, got the text {value!r}")
+    if isinstance(value, jax.Array):  # concrete or traced
+        dtype, shape = value.dtype, value.shape
+    else:
+        try:
+            array = np.asarray(value)
+        except (TypeError, ValueError) as err:
+            raise SceneError(f"{wrong} ({' '.join(str(err).split())})") from None
+        dtype, shape = array.dtype, array.shape
+    if dtype.kind not in "iuf":
+        kinds = {"b": "booleans", "U": "text", "S": "text", "c": "complex numbers"}
+        raise SceneError(f"{wrong}, got {kinds.get(dtype.kind, f'values of type {dtype}')}")
+    if 0 in shape:
+        raise SceneError(f"{name} is empty (shape {shape}): give at least one impact")
+    return tuple(shape)
+
+
+#: The scene's float parameters, by field name, as ``simulate`` broadcasts them.
+SCENE_ARRAYS = (
+    ("particle", "radius"),
+    ("particle", "density"),
+    ("contact", "K"),
+    ("contact", "f0"),
+    ("contact", "C_A"),
+    ("contact", "C_H"),
+    ("contact", "friction"),
+    ("contact", "G_star"),
+    ("model", "lambda_"),
+)
+
+
+def check_simulate_arguments(scene, speed=None, angle_deg=None, omega0=None) -> None:
+    """Check what ``simulate`` was given before anything is converted, naming the argument:
+    a scene that is not a `Scene`, an impact argument that is text, booleans or empty, and
+    arguments and scene parameters whose shapes do not broadcast together. Traced arguments
+    pass (only their shapes are checked); the values are checked by `check_impact`.
+
+    Raises:
+        SceneError: naming the argument (and, for shapes, every non-scalar one).
+    """
+    if not isinstance(scene, Scene):
+        raise SceneError(
+            "scene must be a jaximpact.Scene (jaximpact.load_scene(NAME or PATH), "
+            f"jaximpact.table1_scene()), got {type(scene).__name__}"
+        )
+    shapes = {}
+    for name, value in (("speed", speed), ("angle_deg", angle_deg), ("omega0", omega0)):
+        if value is not None:
+            shapes[name] = _argument_shape(name, value)
+    for section, field in SCENE_ARRAYS:
+        shapes[f"{section}.{field.rstrip('_')}"] = tuple(
+            np.shape(getattr(getattr(scene, section), field))
+        )
+    try:
+        np.broadcast_shapes(*shapes.values())
+    except ValueError:
+        given = ", ".join(f"{name} {shape}" for name, shape in shapes.items() if shape)
+        raise SceneError(
+            f"shapes that do not broadcast together: {given}; give scalars, or arrays of one "
+            "shape (one value per impact)"
+        ) from None
 
 
 class Solver(eqx.Module):
@@ -267,9 +354,9 @@ class Scene(eqx.Module):
 def hertz_stiffness(E1, nu1, E2, nu2):
     """``K = 4 / (3 pi (k1 + k2))`` with ``k_i = (1 - nu_i^2) / (pi E_i)`` (eq. 3-4), in Pa."""
     for name, v in (("E1", E1), ("E2", E2)):
-        check_range(f"contact.{name}", v, positive=True)
+        check_input(f"contact.{name}", "E", v)
     for name, v in (("nu1", nu1), ("nu2", nu2)):
-        check_range(f"contact.{name}", v, lower=-1.0, upper=0.5)
+        check_input(f"contact.{name}", "nu", v)
     k1 = (1 - nu1**2) / (math.pi * E1)
     k2 = (1 - nu2**2) / (math.pi * E2)
     return 4.0 / (3.0 * math.pi * (k1 + k2))

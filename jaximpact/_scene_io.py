@@ -13,6 +13,7 @@ from ._scene import (
     Scene,
     SceneError,
     Solver,
+    check_input,
     damping_from_zeta,
     hertz_stiffness,
     shear_modulus_star,
@@ -169,19 +170,16 @@ def scene_from_dict(data: dict) -> Scene:
         K = hertz_stiffness(*(number("contact", k) for k in ("E1", "nu1", "E2", "nu2")))
     else:
         raise SceneError("missing contact.K (or contact.E1, nu1, E2, nu2)")
-    if not K > 0:
-        raise SceneError(f"contact.K must be > 0, got {K!r}")
+    check_input("contact.K", "K", K)
     damping = {}
     for name in ("A", "H"):
         if has("contact", f"C_{name}") and has("contact", f"zeta_{name}"):
             raise SceneError(f"give either contact.C_{name} or contact.zeta_{name}, not both")
         if has("contact", f"zeta_{name}"):
             zeta = number("contact", f"zeta_{name}")
-            if zeta < 0:
-                raise SceneError(f"contact.zeta_{name} must be >= 0, got {zeta!r}")
+            check_input(f"contact.zeta_{name}", "zeta", zeta)
             v = number("contact", "reference_speed")
-            if v <= 0:
-                raise SceneError(f"contact.reference_speed must be > 0, got {v!r}")
+            check_input("contact.reference_speed", "reference_speed", v)
             damping[name] = damping_from_zeta(
                 zeta, particle.radius.item(), particle.density.item(), K, v
             )
@@ -196,6 +194,7 @@ def scene_from_dict(data: dict) -> Scene:
         G_star = number("contact", "G_star")
         if not G_star > 0:
             raise SceneError(f"contact.G_star must be > 0 (Pa), got {G_star!r}")
+        check_input("contact.G_star", "G_star", G_star)
     elif elastic:  # from the same moduli as K
         G_star = shear_modulus_star(*(number("contact", k) for k in ("E1", "nu1", "E2", "nu2")))
     else:

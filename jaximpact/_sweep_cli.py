@@ -80,14 +80,7 @@ def cmd_sweep(args) -> int:
         restart=args.restart,
         progress=not args.no_progress,
     )
-    rate = summary.impacts_run / summary.seconds if summary.seconds else 0.0
-    print(
-        f"sweep {summary.output}: {summary.n_impacts} impacts in {summary.n_chunks} chunks of "
-        f"{summary.chunk_size} on {summary.devices} device(s); this run: {summary.chunks_run} "
-        f"chunk(s), {summary.impacts_run} impacts in {summary.seconds:.1f} s ({rate:.0f}/s), "
-        f"{summary.chunks_skipped} already done; "
-        + ("complete" if summary.complete else "incomplete (other processes' chunks pending)")
-    )
+    print(summary_line(summary))
     if summary.legacy_columns:
         print(
             "note: this sweep was begun before failure_reason existed; it keeps its columns "
@@ -110,6 +103,28 @@ def cmd_sweep(args) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def summary_line(summary) -> str:
+    """The line a finished ``jaximpact sweep`` prints (a `SweepSummary`)."""
+    rate = (
+        f" ({summary.impacts_run / summary.seconds:.0f} impacts/s)"
+        if summary.impacts_run and summary.seconds
+        else ""
+    )
+    return (
+        f"sweep {summary.output}: {_count(summary.n_impacts, 'impact')} in "
+        f"{_count(summary.n_chunks, 'chunk')} of {summary.chunk_size} on "
+        f"{_count(summary.devices, 'device')}; this run: {_count(summary.chunks_run, 'chunk')}, "
+        f"{_count(summary.impacts_run, 'impact')} in {summary.seconds:.1f} s{rate}, "
+        f"{summary.chunks_skipped} already done; "
+        + ("complete" if summary.complete else "incomplete (other processes' chunks pending)")
+    )
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 chunk``, ``2 chunks``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def add_sweep_command(sub) -> None:

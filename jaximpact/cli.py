@@ -108,8 +108,9 @@ def cmd_simulate(args) -> int:
         jax.config.update("jax_enable_x64", True)
     import numpy as np
 
-    from . import load_scene, simulate
+    from . import implausible_impacts, load_scene, simulate
     from ._paths import check_readable, prepare_output, write_failed
+    from ._ranges import IMPLAUSIBLE
     from ._scene_io import describe_scene_source
     from .tables import ImpactTable, read_impacts, write_results
 
@@ -134,11 +135,14 @@ def cmd_simulate(args) -> int:
         prepare_output(args.output, "results CSV")
 
     result = _simulate_from_cache(scene, table)
+    scene_rows = scene_with_overrides(scene, dict(table.overrides))
     if result is None:
-        scene = scene_with_overrides(scene, dict(table.overrides))
         program = "compact" if table.speed.size <= CACHED_SIMULATE_MAX else "throughput"
-        result = simulate(scene, table.speed, table.angle_deg, table.omega0, program=program)
+        result = simulate(scene_rows, table.speed, table.angle_deg, table.omega0, program=program)
     columns = result.columns()
+    # Physically implausible results (docs/input_ranges.md): a flag column and a warning.
+    flags = implausible_impacts(scene_rows, result, table.speed, table.angle_deg)
+    columns["implausible"] = flags
     if args.output:
         try:
             write_results(args.output, table.as_columns(), columns)
@@ -149,12 +153,21 @@ def cmd_simulate(args) -> int:
     shown = {**inputs, **table.overrides, **columns}
     reasons = columns["failure_reason"]
     n, failed = len(table.speed), int(np.sum(reasons != ""))
+    flagged = int(np.sum(flags != ""))
     names = list(SHOWN_COLUMNS) + (["failure_reason"] if failed else [])
+    names += ["implausible"] if flagged else []
     print(f"scene: {describe_scene_source(args.scene)}; {n} impact(s); SI units")
     if n <= 50 or args.output is None:
         print(_table(shown, names))
     if args.output:
         print(f"wrote {args.output}")
+    if flagged:
+        kinds = ", ".join(f"{k} ({IMPLAUSIBLE[k]})" for k in sorted(set(flags) - {""}))
+        print(
+            f"warning: {flagged} of {n} impact(s) physically implausible: {kinds}; see the "
+            "implausible column and docs/input_ranges.md",
+            file=sys.stderr,
+        )
     if failed == n:
         print(f"error: all {n} impact(s) failed: {failure_summary(reasons)}", file=sys.stderr)
         return EXIT_FAILED
@@ -275,12 +288,21 @@ def _plugins(sub) -> None:
 SCENE_HELP = "scene: an embedded name (see `jaximpact scenes`) or a TOML file; default table1"
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``error: ...``, exit 2), like every other
+    error of the command, instead of argparse's usage block; its subcommands' parsers too."""
+
+    def error(self, message):
+        message = " ".join(message.split())
+        self.exit(EXIT_BAD_INPUT, f"error: {message}; see `{self.prog} --help`\n")
+
+
 def build_parser(plugins: bool = True) -> argparse.ArgumentParser:
     from . import __version__
     from ._sweep_cli import add_sweep_command
     from .tables import COLUMN_UNITS
 
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="jaximpact",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -101,6 +101,7 @@ from .tables import (
     TEXT_RESULT_COLUMNS,
     ImpactTable,
     TableError,
+    allowed_range,
     atomic_write_bytes,
     atomic_write_text,
     check_impact_value,
@@ -188,8 +189,10 @@ class GridSource:
             for v in np.asarray(values, float).tolist():
                 try:
                     check_impact_value(name, v)
-                except TableError as err:
-                    raise SweepError(f"grid {name}: {err}") from None
+                except TableError:
+                    raise SweepError(
+                        f"grid {name}: value {v!r} out of range: {allowed_range(name)}"
+                    ) from None
         self.axes = {k: np.asarray(v, np.float64) for k, v in axes.items()}
         self.defaults = {k: float(impact_defaults[k]) for k in IMPACT_COLUMNS}
         self.shape = tuple(v.size for v in self.axes.values())

@@ -37,12 +37,14 @@ import pyarrow.compute as pc
 import pyarrow.csv as pv
 
 from ._paths import keep_mode, output_target
+from ._ranges import IMPLAUSIBLE, RANGES, range_text
 
 __all__ = [
     "IMPACT_COLUMNS",
     "IMPACT_PARAMETER_COLUMNS",
     "RESULT_COLUMNS",
     "RESULT_STATUSES",
+    "OPTIONAL_RESULT_COLUMNS",
     "COLUMN_UNITS",
     "FAILURE_REASONS",
     "TEXT_RESULT_COLUMNS",
@@ -54,6 +56,7 @@ __all__ = [
     "atomic_write_text",
     "check_impact_value",
     "located_error",
+    "number_text",
     "parse_number",
     "read_csv_rows",
     "read_impacts",
@@ -92,7 +95,13 @@ RESULT_COLUMNS = (
 #: Result columns that hold text; the others are numbers (NaN, an empty field, where they do
 #: not apply). ``failure_reason`` is empty unless ``status`` is ``failed``, then one of
 #: :data:`FAILURE_REASONS`.
-TEXT_RESULT_COLUMNS = ("status", "failure_reason")
+TEXT_RESULT_COLUMNS = ("status", "failure_reason", "implausible")
+
+#: Result columns a results CSV may add after :data:`RESULT_COLUMNS`: ``implausible``, the
+#: plausibility flag of each impact (``jaximpact simulate`` writes it): empty, or a key of
+#: :data:`IMPLAUSIBLE` (``large_overlap``: the maximum overlap is beyond the small-strain range
+#: of Hertz contact; docs/input_ranges.md).
+OPTIONAL_RESULT_COLUMNS = ("implausible",)
 
 #: Why an impact failed (the ``failure_reason`` column; ``jaximpact.Status`` names them too).
 FAILURE_REASONS = {
@@ -131,13 +140,11 @@ COLUMN_UNITS = {
     "loss_friction": "J",
     "loss_rolling": "J",
     "failure_reason": "",
+    "implausible": "",
 }
 
 #: The statuses the conventions define for a simulated impact.
 RESULT_STATUSES = ("rebound", "captured", "failed")
-
-_POSITIVE = ("radius", "density", "K")
-_NON_NEGATIVE = ("f0", "C_A", "C_H", "friction", "lambda")
 
 
 class TableError(ValueError):
@@ -154,14 +161,24 @@ class TableError(ValueError):
         self.column = column
 
 
+def number_text(value) -> str:
+    """A value as a message shows it: ``2.0``, never ``np.float64(2.0)`` (numpy 2's repr)."""
+    if isinstance(value, (bool, np.bool_)):
+        return repr(bool(value))
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return repr(int(value)) if isinstance(value, (int, np.integer)) else repr(float(value))
+    return repr(value)
+
+
 def located_error(error: type[TableError], path, line, column, problem: str) -> TableError:
     """Build ``error`` with the standard "file, line N, column 'c': problem" message."""
-    where = [str(path) if path is not None else "<table>"]
+    where = [] if path is None else [str(path)]
     if line is not None:
         where.append(f"line {line}")
     if column is not None:
         where.append(f"column '{column}'")
-    return error(f"{', '.join(where)}: {problem}", path=path, line=line, column=column)
+    text = f"{', '.join(where)}: {problem}" if where else problem
+    return error(text, path=path, line=line, column=column)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -169,34 +186,20 @@ def located_error(error: type[TableError], path, line, column, problem: str) -> 
 
 
 def allowed_range(name: str) -> str:
-    """Describe the allowed values of impact column ``name`` (for error messages).
+    """Describe the allowed values of impact column ``name`` (for error messages): its
+    documented range (``jaximpact._ranges.RANGES``, docs/input_ranges.md).
 
     Raises:
         KeyError: ``name`` is not an impact or parameter column.
     """
-    if name == "speed" or name in _POSITIVE:
-        return f"{name} must be finite and > 0"
-    if name == "angle_deg":
-        return "angle_deg must be finite, with -90 < angle_deg < 90"
-    if name == "omega0":
-        return "omega0 must be finite"
-    if name in _NON_NEGATIVE:
-        return f"{name} must be finite and >= 0"
-    raise KeyError(name)
+    if name not in IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS:
+        raise KeyError(name)
+    return range_text(name)
 
 
 def _in_range(name: str, value) -> np.ndarray:
     """Whether each of ``value`` (a float or an array) is allowed in column ``name``."""
-    value = np.asarray(value, dtype=np.float64)
-    if name == "speed" or name in _POSITIVE:
-        allowed = value > 0
-    elif name == "angle_deg":
-        allowed = np.abs(value) < 90
-    elif name in _NON_NEGATIVE:
-        allowed = value >= 0
-    else:
-        allowed = True  # omega0: any finite spin
-    return np.isfinite(value) & allowed
+    return RANGES[name].contains(value)
 
 
 def check_impact_value(
@@ -215,7 +218,11 @@ def check_impact_value(
     """
     if not _in_range(name, value):
         raise located_error(
-            error, path, line, name, f"value {value!r} out of range: {allowed_range(name)}"
+            error,
+            path,
+            line,
+            name,
+            f"value {number_text(value)} out of range: {allowed_range(name)}",
         )
 
 
@@ -640,7 +647,8 @@ def write_results(
         path: the destination file.
         inputs: the impact table that was simulated (its :attr:`ImpactTable.columns` are
             repeated), or an ordered mapping ``{input column: values}``.
-        results: ``{name: values}`` with exactly the keys of :data:`RESULT_COLUMNS`: ``status``
+        results: ``{name: values}`` with the keys of :data:`RESULT_COLUMNS` (and optionally
+            those of :data:`OPTIONAL_RESULT_COLUMNS`, written last): ``status``
             holds strings, ``failure_reason`` empty strings or keys of :data:`FAILURE_REASONS`,
             the others numbers (NaN for "not applicable", written empty).
         comments: lines written first, each prefixed with ``# `` (e.g. the scene used).
@@ -658,19 +666,20 @@ def write_results(
 
     columns = inputs.as_columns() if isinstance(inputs, ImpactTable) else dict(inputs)
     missing = [name for name in RESULT_COLUMNS if name not in results]
-    unknown = [name for name in results if name not in RESULT_COLUMNS]
+    unknown = [name for name in results if name not in RESULT_COLUMNS + OPTIONAL_RESULT_COLUMNS]
     if missing or unknown:
         raise fail(
             None,
             f"result columns missing: {missing or 'none'}; unknown: {unknown or 'none'}; "
             f"expected: {', '.join(RESULT_COLUMNS)}",
         )
-    clash = [name for name in columns if name in RESULT_COLUMNS]
+    clash = [name for name in columns if name in RESULT_COLUMNS + OPTIONAL_RESULT_COLUMNS]
     if clash:
         raise fail(clash[0], "input column named like a result column")
 
     table: dict[str, list] = {name: _numeric_column(name, v, path) for name, v in columns.items()}
-    for name in RESULT_COLUMNS:
+    written = RESULT_COLUMNS + tuple(n for n in OPTIONAL_RESULT_COLUMNS if n in results)
+    for name in written:
         table[name] = (
             [str(s) for s in np.asarray(results[name], dtype=object).ravel()]
             if name in TEXT_RESULT_COLUMNS
@@ -685,6 +694,10 @@ def write_results(
             raise fail("status", f"row {i}: invalid status {s!r}")
         if reason and reason not in FAILURE_REASONS:
             raise fail("failure_reason", f"row {i}: {_bad_reason(reason)}")
+    for i, flag in enumerate(table.get("implausible", ())):
+        if flag and flag not in IMPLAUSIBLE:
+            allowed = ", ".join(IMPLAUSIBLE)
+            raise fail("implausible", f"row {i}: invalid flag {flag!r}; allowed: empty, {allowed}")
 
     buffer = io.StringIO()
     for comment in comments:
@@ -705,18 +718,27 @@ def read_results(path) -> dict[str, np.ndarray]:
 
     Returns:
         dict: ``{column: array}`` in file order: the input columns and the numeric result
-        columns as float64 (empty fields as NaN), ``status`` and ``failure_reason`` as arrays
-        of str. Files written before ``failure_reason`` existed have no such key.
+        columns as float64 (empty fields as NaN), ``status``, ``failure_reason`` and
+        ``implausible`` (where the file has it) as arrays of str. Files written before
+        ``failure_reason`` existed have no such key.
 
     Raises:
         TableError: the header does not end with :data:`RESULT_COLUMNS` (with or without
-            ``failure_reason``), a numeric field is not a number, a failure reason is unknown,
-            or the file is not well-formed (see :func:`read_csv_rows`).
+            ``failure_reason``; optionally then ``implausible``), a numeric field is not a
+            number, a failure reason is unknown, or the file is not well-formed (see
+            :func:`read_csv_rows`).
         OSError: the file cannot be read.
     """
     table = read_csv_rows(path)
     # Files written before failure_reason existed end with loss_rolling: still readable.
-    expected = RESULT_COLUMNS if table.header[-1:] == ("failure_reason",) else RESULT_COLUMNS[:-1]
+    last = table.header[-1:]
+    expected = (
+        RESULT_COLUMNS + OPTIONAL_RESULT_COLUMNS
+        if last == OPTIONAL_RESULT_COLUMNS[-1:]
+        else RESULT_COLUMNS
+        if last == ("failure_reason",)
+        else RESULT_COLUMNS[:-1]
+    )
     n_inputs = len(table.header) - len(expected)
     if n_inputs < 0 or table.header[n_inputs:] != expected:
         problem = f"the header must end with the result columns {', '.join(RESULT_COLUMNS)}"

@@ -344,3 +344,193 @@ def test_plot_format_checked_before_the_fit(tmp_path):
         assert f"{option} {tmp_path / name}" in line and "png" in line and "pdf" in line, line
         assert time.perf_counter() - start < 60  # before compiling anything
         assert not out.exists()
+
+
+def test_input_ranges_are_one_table_in_simulate_fit_and_design(tmp_path):
+    """Item 4: friction 6 ran in simulate while the fit refused 2 with an unstated bound of
+    1.5; speed 1e6 m/s ran. Now every input has one documented range, refused alike by the
+    scene, simulate, an impacts file, the fit's starting values, priors and design."""
+    import re
+    from pathlib import Path
+
+    import fitting
+    from fitting._priors import parse_prior
+    from jaximpact._ranges import RANGES
+    from jaximpact.tables import TableError, read_impacts
+
+    rule = "friction must be finite and in [0, 10]"
+    scene = jaximpact.table1_scene()
+    with pytest.raises(jaximpact.SceneError) as err:
+        scene.replace(contact={"friction": 11.0})
+    assert f"contact.{rule}" in str(err.value) and "got 11.0" in str(err.value)
+    with pytest.raises(fitting.FitError) as err:
+        fitting.to_unbounded(["friction"], np.array([11.0]))
+    assert rule in str(err.value) and "np.float64" not in str(err.value)
+    impacts = tmp_path / "imp.csv"
+    impacts.write_text("speed,angle_deg,friction\n1,30,11\n")
+    with pytest.raises(TableError, match=re.escape(rule)):
+        read_impacts(impacts)
+    candidates = tmp_path / "cand.csv"
+    candidates.write_text("speed,angle_deg\n1,30\n")
+    with pytest.raises(jaximpact.SceneError, match=re.escape(rule)):
+        fitting.design(scene, candidates, ["friction"], 1, values={"friction": 11.0})
+    with pytest.raises(fitting.FitError, match=re.escape("[0, 10]")):
+        parse_prior("friction", "loguniform:0.01:20")
+    # Inside the range everywhere: a fit may start at friction 2 or 6 (refused before).
+    assert np.all(np.isfinite(fitting.to_unbounded(["friction"], [2.0])))
+    assert np.all(np.isfinite(fitting.to_unbounded(["friction"], [6.0])))
+    scene.replace(contact={"friction": 6.0})
+    with pytest.raises(
+        jaximpact.SceneError, match=re.escape("speed must be finite and in (0, 1000] m/s")
+    ):
+        jaximpact.simulate(scene, 1e6)
+    # docs/input_ranges.md states exactly the ranges (and units) the code applies, for every
+    # input the code has a range for.
+    doc = (Path(__file__).parents[1] / "docs" / "input_ranges.md").read_text()
+    rows = re.findall(r"^\| (`[^|]+) \| ([^|]+?) \| ([^|]+?) \|", doc, re.M)
+    alias = {"E1": "E", "E2": "E", "nu1": "nu", "nu2": "nu", "zeta_A": "zeta", "zeta_H": "zeta"}
+    documented = {
+        alias.get(name, name): (unit, interval)
+        for names, unit, interval in rows
+        for name in re.findall(r"`(\w+)`", names)
+    }
+    assert set(documented) == set(RANGES)
+    for name, allowed in RANGES.items():
+        unit, interval = documented[name]
+        assert unit == allowed.unit, name
+        assert f"{interval} {unit}".removesuffix(" 1") == allowed.interval(), name
+
+
+def test_implausible_overlap_is_flagged_not_refused(tmp_path):
+    """Item 4: a result beyond the small-strain range of Hertz contact (maximum overlap above
+    0.1 of the radius) gets a warning and a flag column; inputs beyond a hard limit exit 2."""
+    scene = tmp_path / "soft.toml"
+    scene.write_text(
+        "[particle]\nradius = 1e-3\ndensity = 1000\n"
+        "[contact]\nK = 1e6\nC_H = 0.0\nfriction = 0.2\n"
+        "[impact]\nspeed = 0.1\nangle_deg = 20\n"
+    )
+    impacts = tmp_path / "imp.csv"
+    impacts.write_text("speed,angle_deg\n0.01,20\n5.0,20\n")
+    out = tmp_path / "r.csv"
+    proc = run("simulate", scene, "--impacts", impacts, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    warning = [line for line in proc.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warning) == 1 and "1 of 2 impact(s) physically implausible" in warning[0]
+    assert "large_overlap" in warning[0] and "0.1 of the radius" in warning[0]
+    res = read_results(out)
+    assert list(res["implausible"]) == ["", "large_overlap"]
+    assert res["max_overlap"][1] > 0.1e-3 > 10 * res["max_overlap"][0]  # the flag's reason
+    assert "implausible" in proc.stdout.splitlines()[1]  # the printed table shows the flag
+    # The Python API gives the same flags.
+    s = jaximpact.load_scene(scene)
+    result = jaximpact.simulate(s, res["speed"], 20.0)
+    assert list(jaximpact.implausible_impacts(s, result, res["speed"], 20.0)) == [
+        "",
+        "large_overlap",
+    ]
+    impacts.write_text("speed,angle_deg\n1e6,20\n")
+    line = one_line_error(run("simulate", scene, "--impacts", impacts))
+    assert "line 2, column 'speed'" in line and "(0, 1000] m/s" in line
+
+
+def test_fit_and_design_warn_about_implausible_impacts(tmp_path):
+    """Item 4: fit and design warn when the values make an impact implausible (elastic
+    Hertz estimate of the overlap, the same 0.1 of the radius)."""
+    import fitting
+    from fitting._design import DesignResult
+    from fitting._fit import _implausible_impacts
+    from jaximpact.tables import ImpactTable
+
+    soft = jaximpact.table1_scene().replace(contact={"K": 1e6, "f0": 0.0})
+    data = tmp_path / "d.csv"
+    data.write_text("speed,angle_deg,cor_n\n0.01,0,0.9\n5.0,0,0.5\n3.0,0,0.6\n")
+    objective = fitting.Objective(soft, data, ["C_H"], method="tsit5")
+    assert _implausible_impacts(objective, soft) == 2
+    assert _implausible_impacts(objective, jaximpact.table1_scene()) == 0
+    table = ImpactTable(speed=[0.01, 5.0], angle_deg=[0.0, 0.0])
+    empty = np.zeros(0, int)
+    result = DesignResult(
+        ("C_H",),
+        ("cor_n",),
+        table,
+        empty,
+        empty,
+        empty,
+        np.array([1]),
+        np.ones(1),
+        np.ones(1),
+        np.zeros((2, 1, 1)),
+        0.0,
+        np.ones((2, 1)),
+        implausible=np.array([1]),
+    )
+    (warning,) = result.warnings()
+    assert "1 of 2 candidate impacts are physically implausible" in warning
+    assert "1 of them chosen" in warning
+
+
+def test_one_line_messages_for_bad_options_and_names(tmp_path):
+    """Item 7: argparse's usage block, --params swallowing the data name, unknown data names,
+    the `<table>` placeholder, numpy reprs, plurals."""
+    line = one_line_error(run("simulate", "--precision", "float16"))
+    assert "--precision" in line and "float16" in line and "float64" in line and "float32" in line
+    line = one_line_error(run("bogus"))
+    assert "bogus" in line and "simulate" in line
+    line = one_line_error(run("fit", "--params", "friction", "kharaz2001"))
+    assert "'kharaz2001'" in line and "comma list" in line and "--params friction" in line
+    line = one_line_error(run("fit", tmp_path / "nosuch.csv", "--params", "friction"))
+    assert "not found" in line and "kharaz2001, kharaz2001_mindlin" in line
+    from fitting._objective import FITTABLE
+    from fitting.cli import split_names
+
+    assert split_names("--params", ["friction,G_star", "C_A"], FITTABLE) == (
+        "friction",
+        "G_star",
+        "C_A",
+    )
+    from jaximpact.sweep import GridSource, SweepError, parse_grid
+
+    defaults = {"speed": 1.0, "angle_deg": 0.0, "omega0": 0.0}
+    with pytest.raises(SweepError) as err:
+        GridSource(parse_grid(["speed=-1,1"]), defaults)
+    assert str(err.value) == (
+        "grid speed: value -1.0 out of range: speed must be finite and in (0, 1000] m/s"
+    )
+    from jaximpact.tables import TableError, check_impact_value
+
+    with pytest.raises(TableError) as err:
+        check_impact_value("speed", np.float64(-2.0))
+    assert "np.float64" not in str(err.value) and "value -2.0" in str(err.value)
+    from jaximpact._sweep_cli import summary_line
+    from jaximpact.sweep import SweepSummary
+
+    done = SweepSummary("out", 64, 1, 64, 0, 1, 0, 0, 0.01, 1, True, 64)
+    text = summary_line(done)
+    assert "64 impacts in 1 chunk of 64 on 1 device;" in text
+    assert "this run: 0 chunks, 0 impacts in 0.0 s," in text and "/s" not in text
+    many = SweepSummary("out", 128, 2, 64, 2, 0, 128, 0, 2.0, 2, True, 128)
+    assert "2 chunks, 128 impacts in 2.0 s (64 impacts/s)" in summary_line(many)
+
+
+def test_python_api_errors_name_the_argument():
+    """Item 7: a string speed, the string "1.0", an empty list, shapes that do not broadcast
+    and a scene that is not a Scene are refused by name, before anything is converted."""
+    scene = jaximpact.table1_scene()
+    cases = [
+        ((scene, "1.0"), "speed must be a number or an array of numbers, got the text '1.0'"),
+        ((scene, "fast"), "speed must be a number"),
+        ((scene, 1.0, ["a"]), "angle_deg must be a number or an array of numbers, got text"),
+        ((scene, []), "speed is empty"),
+        ((scene, 1.0, 0.0, np.zeros((0, 2))), "omega0 is empty"),
+        ((scene, [1.0, 2.0], [10.0, 20.0, 30.0]), "speed (2,), angle_deg (3,)"),
+        (
+            (scene.replace(contact={"f0": np.array([1.0, 2.0, 3.0])}), [1.0, 2.0]),
+            "speed (2,), contact.f0 (3,)",
+        ),
+        (("table1", 1.0), "scene must be a jaximpact.Scene"),
+    ]
+    for args, message in cases:
+        with pytest.raises(jaximpact.SceneError) as err:
+            jaximpact.simulate(*args)
+        assert message in str(err.value), (args, str(err.value))

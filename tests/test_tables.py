@@ -12,6 +12,7 @@ from jaximpact.tables import (
     FAILURE_REASONS,
     IMPACT_COLUMNS,
     IMPACT_PARAMETER_COLUMNS,
+    OPTIONAL_RESULT_COLUMNS,
     RESULT_COLUMNS,
     TEXT_RESULT_COLUMNS,
     ImpactTable,
@@ -93,20 +94,31 @@ BAD_IMPACTS = [
     ("speed,angle_deg\n1,\n", 2, "angle_deg", "empty value"),
     ("speed,angle_deg\n1,nan\n", 2, "angle_deg", "finite"),
     ("speed,angle_deg\ninf,0\n", 2, "speed", "finite"),
-    ("speed,angle_deg\n0,0\n", 2, "speed", "> 0"),
-    ("speed,angle_deg\n-1,0\n", 2, "speed", "> 0"),
-    ("speed,angle_deg\n1,90\n", 2, "angle_deg", "-90 < angle_deg < 90"),
-    ("speed,angle_deg\n1,-90\n", 2, "angle_deg", "-90 < angle_deg < 90"),
-    ("speed,angle_deg\n1,120\n", 2, "angle_deg", "-90 < angle_deg < 90"),
+    ("speed,angle_deg\n0,0\n", 2, "speed", "speed must be finite and in (0, 1000] m/s"),
+    ("speed,angle_deg\n-1,0\n", 2, "speed", "(0, 1000] m/s"),
+    ("speed,angle_deg\n1,90\n", 2, "angle_deg", "angle_deg must be finite and in (-90, 90) deg"),
+    ("speed,angle_deg\n1,-90\n", 2, "angle_deg", "angle_deg must be finite and in (-90, 90) deg"),
+    ("speed,angle_deg\n1,120\n", 2, "angle_deg", "angle_deg must be finite and in (-90, 90) deg"),
     ("speed,angle_deg,omega0\n1,0,-inf\n", 2, "omega0", "finite"),
-    ("speed,angle_deg,radius\n1,0,0\n", 2, "radius", "radius must be finite and > 0"),
-    ("speed,angle_deg,density\n1,0,-1\n", 2, "density", "> 0"),
-    ("speed,angle_deg,K\n1,0,0\n", 2, "K", "> 0"),
-    ("speed,angle_deg,f0\n1,0,-0.1\n", 2, "f0", "f0 must be finite and >= 0"),
-    ("speed,angle_deg,C_A\n1,0,-1\n", 2, "C_A", ">= 0"),
-    ("speed,angle_deg,C_H\n1,0,-1\n", 2, "C_H", ">= 0"),
-    ("speed,angle_deg,friction\n1,0,-0.3\n", 2, "friction", ">= 0"),
-    ("speed,angle_deg,lambda\n1,0,-1e-9\n", 2, "lambda", ">= 0"),
+    ("speed,angle_deg,radius\n1,0,0\n", 2, "radius", "radius must be finite and in [1e-9, 1] m"),
+    ("speed,angle_deg,density\n1,0,-1\n", 2, "density", "(0, 1e5] kg/m^3"),
+    ("speed,angle_deg,K\n1,0,0\n", 2, "K", "(0, 1e13] Pa"),
+    ("speed,angle_deg,f0\n1,0,-0.1\n", 2, "f0", "f0 must be finite and in [0, 1e6] N/m"),
+    ("speed,angle_deg,C_A\n1,0,-1\n", 2, "C_A", "[0, 1e4] s/m"),
+    ("speed,angle_deg,C_H\n1,0,-1\n", 2, "C_H", "[0, 1e4] s/m"),
+    (
+        "speed,angle_deg,friction\n1,0,-0.3\n",
+        2,
+        "friction",
+        "friction must be finite and in [0, 10]",
+    ),
+    ("speed,angle_deg,lambda\n1,0,-1e-9\n", 2, "lambda", "[0, 100] N m"),
+    # The upper ends of the documented ranges (docs/input_ranges.md; issue 24, item 4).
+    ("speed,angle_deg\n1e6,0\n", 2, "speed", "(0, 1000] m/s"),
+    ("speed,angle_deg,omega0\n1,0,2e9\n", 2, "omega0", "[-1e9, 1e9] rad/s"),
+    ("speed,angle_deg,radius\n1,0,35\n", 2, "radius", "[1e-9, 1] m"),
+    ("speed,angle_deg,friction\n1,0,11\n", 2, "friction", "[0, 10]"),
+    ("speed,angle_deg,K\n1,0,1e14\n", 2, "K", "(0, 1e13] Pa"),
     ("# only a header\nspeed,angle_deg\n# and comments\n\n", 2, None, "no data rows"),
 ]
 
@@ -143,7 +155,7 @@ LOCATED = [
         "# a\nspeed,angle_deg\n# b\n1,0\n#c\n1,95\n",
         6,
         "angle_deg",
-        "-90 < angle_deg < 90",
+        "angle_deg must be finite and in (-90, 90) deg",
         id="out-of-range",
     ),
     pytest.param(
@@ -172,9 +184,11 @@ LOCATED = [
         '# a\nspeed,"angle_deg\n1,0\n', 2, None, "not a complete CSV line", id="unclosed-header"
     ),
     pytest.param(
-        "\ufeff# a\nspeed,angle_deg\n1,0\n1,-91\n", 4, "angle_deg", "-90 < angle_deg", id="bom"
+        "\ufeff# a\nspeed,angle_deg\n1,0\n1,-91\n", 4, "angle_deg", "(-90, 90) deg", id="bom"
     ),
-    pytest.param("\ufeffspeed,angle_deg\n0,0\n", 2, "speed", "> 0", id="bom-before-header"),
+    pytest.param(
+        "\ufeffspeed,angle_deg\n0,0\n", 2, "speed", "(0, 1000] m/s", id="bom-before-header"
+    ),
     pytest.param(
         "# a\r\n\r\nspeed,angle_deg\r\n1,0\r\n# b\r\n1,x\r\n", 6, "angle_deg", "'x'", id="crlf"
     ),
@@ -426,7 +440,12 @@ def test_invalid_failure_reason_is_refused_on_reading(tmp_path):
 
 
 def test_every_column_has_a_unit():
-    assert set(COLUMN_UNITS) == {*IMPACT_COLUMNS, *IMPACT_PARAMETER_COLUMNS, *RESULT_COLUMNS}
+    assert set(COLUMN_UNITS) == {
+        *IMPACT_COLUMNS,
+        *IMPACT_PARAMETER_COLUMNS,
+        *RESULT_COLUMNS,
+        *OPTIONAL_RESULT_COLUMNS,
+    }
     assert COLUMN_UNITS["speed"] == "m/s" and COLUMN_UNITS["energy_in"] == "J"
     assert COLUMN_UNITS["status"] == COLUMN_UNITS["failure_reason"] == ""
 
