@@ -42,6 +42,7 @@ from jaximpact._cache import runtime_checks_as_nan
 from jaximpact._ranges import IMPLAUSIBLE, RANGES, implausible
 from jaximpact.tables import number_text
 
+from ._data import Observations, load_observations
 from ._lm import levenberg_marquardt
 from ._objective import FitError, Objective, check_names, get_parameter
 from ._program import JACOBIAN_MODES, ResidualProgram
@@ -328,6 +329,9 @@ def fit(
     u0 = to_unbounded(names, p0)
     points = _start_points(names, u0, starts, spread, seed)
     start_values = [_physical(names, u) for u in points]
+    if not isinstance(observations, Observations):
+        observations = load_observations(observations)
+    check_enough_observations(observations, names)
 
     objective = Objective(scene, observations, names, method=method, check_values=start_values)
     program = ResidualProgram(objective, len(points), jacobian=jacobian)
@@ -504,6 +508,34 @@ def fit(
     )
 
 
+def check_enough_observations(observations: Observations, names: Sequence[str]) -> None:
+    """Refuse, before anything is compiled, data that cannot determine the parameters: fewer
+    independent observations (distinct pairs of impact and observable: a repeated
+    measurement of the same thing adds no direction) than parameters.
+
+    Raises:
+        FitError: naming both counts.
+    """
+    pairs = {
+        (int(i), str(o))
+        for i, o in zip(observations.impact_index, observations.observable, strict=True)
+    }
+    if len(pairs) < len(names):
+        n_rows = len(observations)
+        repeats = f" ({n_rows} rows)" if n_rows != len(pairs) else ""
+        raise FitError(
+            f"{observations.source}: {_count(len(pairs), 'independent observation')}"
+            f"{repeats} for {_count(len(names), 'parameter')} ({', '.join(names)}): the data "
+            f"cannot determine them; measure at least {len(names)} distinct quantities "
+            "(observables at distinct impacts), or fit fewer parameters"
+        )
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 observation``, ``2 observations``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def _dtype():
     return jnp.result_type(float)
 
@@ -585,8 +617,8 @@ def _diagnose(jac, cost, n, names, theta, sigma_known) -> dict:
     else:
         s2 = math.nan
         undetermined.append(
-            f"{n} observations for {p} parameters and no sigmas: no residual variance, so no "
-            "standard errors"
+            f"{_count(n, 'observation')} for {_count(p, 'parameter')} and no sigmas: no "
+            "residual variance, so no standard errors"
         )
     out["residual_scale"] = math.sqrt(s2) if math.isfinite(s2) else math.nan
 
@@ -618,7 +650,10 @@ def _diagnose(jac, cost, n, names, theta, sigma_known) -> dict:
     with np.errstate(divide="ignore", invalid="ignore"):
         sens = np.linalg.norm(jac, axis=0) * np.abs(theta) / np.abs(dpdu)
     out["sensitivity"] = {nm: float(v) for nm, v in zip(names, sens, strict=True)}
-    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    # Every one of the p directions, also where there are fewer residuals than parameters:
+    # the directions no residual sees have singular value 0 (a full V, zeros appended).
+    _, sv, vt = np.linalg.svd(jac, full_matrices=True)
+    sv = np.concatenate([sv, np.zeros(p - sv.size)])
     out["singular_values"] = sv
     keep = sv > sv[0] / MAX_CONDITION if sv[0] > 0 else np.zeros(p, bool)
     out["rank"] = int(np.sum(keep))
@@ -629,12 +664,20 @@ def _diagnose(jac, cost, n, names, theta, sigma_known) -> dict:
     if out["rank"] < p:
         combos = []
         for v in null:
-            terms = [f"{v[j]:+.2f} {names[j]}" for j in np.argsort(-np.abs(v)) if abs(v[j]) > 0.1]
+            terms = [
+                f"{v[j]:+.2f} {names[j]}" for j in np.argsort(-np.abs(v)) if abs(v[j]) > NULL_SHARE
+            ]
             combos.append(" ".join(terms))
+        cond = out["condition_number"]
+        why = (
+            f"{_count(int(np.sum(sv == 0)), 'direction')} with no sensitivity at all"
+            if not math.isfinite(cond)
+            else f"condition number {cond:.3g}, above the limit {MAX_CONDITION:g}"
+        )
         undetermined.append(
             f"the data do not determine {', '.join(out['unidentifiable'])}: the Jacobian has "
-            f"rank {out['rank']} of {p} (condition number {out['condition_number']:.3g} > "
-            f"{MAX_CONDITION:g}); undetermined direction(s) in log-parameters: " + "; ".join(combos)
+            f"rank {out['rank']} of {p} ({why}); undetermined direction(s) in "
+            "log-parameters: " + "; ".join(combos)
         )
 
     inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)

@@ -139,16 +139,26 @@ def summary(result: FitResult) -> str:
         sens = result.sensitivity.get(n, math.nan)
         flag = "  NOT IDENTIFIED" if n in result.unidentifiable else ""
         lines.append(f"  {n.ljust(width)} = {v:.6g} +- {err}{rel}; sensitivity {sens:.3g}{flag}")
-    fit_quality = (
-        f"reduced chi-square = {result.reduced_chi2:.4g} (dof {result.dof}, "
-        f"p = {result.p_value:.3g})"
-        if math.isfinite(result.reduced_chi2)
-        else f"rms residual = {result.rms_residual:.4g} scale(s) (no sigmas: no chi-square)"
-    )
+    if math.isfinite(result.reduced_chi2):
+        fit_quality = (
+            f"reduced chi-square = {result.reduced_chi2:.4g} (dof {result.dof}, "
+            f"p = {result.p_value:.3g})"
+        )
+    elif result.objective.sigma_known:  # sigmas, but nothing left over to test them with
+        fit_quality = (
+            f"rms residual = {result.rms_residual:.4g} sigma(s) (no chi-square: "
+            f"{_count(result.n_data, 'observation')} for {_count(len(result.params), 'parameter')}"
+            ", no degrees of freedom left)"
+        )
+    else:
+        fit_quality = (
+            f"rms residual = {result.rms_residual:.4g} scale(s) (no sigmas: no chi-square)"
+        )
     lines.append(f"cost (1/2 sum r^2) = {result.cost:.6g}; {fit_quality}")
+    cond = result.condition_number
     lines.append(
         f"Jacobian: rank {result.rank} of {len(result.params)}, condition number "
-        f"{result.condition_number:.3g}"
+        + (f"{cond:.3g}" if math.isfinite(cond) else "infinite")
         + (f"; not identified: {', '.join(result.unidentifiable)}" if result.unidentifiable else "")
     )
     if len(result.params) > 1:

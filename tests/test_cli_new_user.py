@@ -534,3 +534,97 @@ def test_python_api_errors_name_the_argument():
         with pytest.raises(jaximpact.SceneError) as err:
             jaximpact.simulate(*args)
         assert message in str(err.value), (args, str(err.value))
+
+
+def test_fit_refuses_fewer_observations_than_parameters_before_compiling(tmp_path):
+    """Item 3: one data row for three parameters compiled for 12 s and then reported an
+    empty list of undetermined parameters; now exit 2 at once, naming both counts."""
+    data = tmp_path / "one.csv"
+    data.write_text("speed,angle_deg,cor_n\n1.0,0,0.7\n")
+    start = time.perf_counter()
+    line = one_line_error(run("fit", data, "--params", "C_A,C_H,f0", "--no-progress"))
+    assert "1 independent observation for 3 parameters (C_A, C_H, f0)" in line, line
+    assert time.perf_counter() - start < 60
+    # Repeating one measurement adds no independent observation.
+    data.write_text("speed,angle_deg,cor_n\n1.0,0,0.7\n1.0,0,0.71\n1.0,0,0.69\n")
+    line = one_line_error(run("fit", data, "--params", "C_A,C_H", "--no-progress"))
+    assert "1 independent observation (3 rows) for 2 parameters" in line, line
+
+
+def _inequalities_hold(text):
+    """Every `A > B` and `A, above the limit B` with numbers in ``text`` is true."""
+    import re
+
+    number = r"([0-9.]+(?:e[+-]?[0-9]+)?|inf)"
+    pairs = re.findall(number + r" > " + number, text)
+    pairs += re.findall(number + r", above the limit " + number, text)
+    return all(float(a) > float(b) for a, b in pairs), pairs
+
+
+@pytest.mark.parametrize("sigma_known", [False, True])
+def test_undetermined_parameters_are_named_with_true_numbers(sigma_known):
+    """Item 3: fewer residuals than parameters gave rank 1 of 3 with `condition number 1 >
+    1e+08`, no names and finite standard errors; a dependent pair of columns must name both."""
+    import math
+
+    from fitting._fit import _diagnose
+
+    names = ("C_A", "C_H", "f0")
+    theta = np.array([0.9, 0.2, 300.0])
+    rng = np.random.default_rng(1)
+    cases = {
+        "one row": rng.normal(size=(1, 3)),
+        "two rows": rng.normal(size=(2, 3)),
+        "C_A and C_H move together": np.c_[np.tile(rng.normal(size=(5, 1)), 2), rng.normal(size=5)],
+    }
+    for what, jac in cases.items():
+        d = _diagnose(jac, 0.1, len(jac), names, theta, sigma_known)
+        assert d["rank"] < 3, what
+        assert d["unidentifiable"], what
+        if what == "C_A and C_H move together":
+            assert d["unidentifiable"] == ["C_A", "C_H"]
+        for name in d["unidentifiable"]:
+            assert d["stderr"][name] == math.inf, (what, d["stderr"])
+        (message,) = [m for m in d["undetermined"] if "do not determine" in m]
+        assert f"do not determine {', '.join(d['unidentifiable'])}:" in message, message
+        ok, pairs = _inequalities_hold(message)
+        assert ok, (what, pairs, message)
+        if len(jac) < 3:
+            assert d["condition_number"] == math.inf and "no sensitivity" in message, message
+
+
+def test_fit_summary_with_sigmas_never_says_no_sigmas():
+    """Item 3: data with sigma columns and no degrees of freedom printed "no sigmas: no
+    chi-square"; the summary says why there is no chi-square, with right plurals."""
+    from types import SimpleNamespace
+
+    import fitting
+
+    def result(sigma_known, n_data):
+        obs = SimpleNamespace(source="d.csv")
+        return fitting.FitResult(
+            params=("C_A", "f0"),
+            values={"C_A": 1.0, "f0": 300.0},
+            stderr={"C_A": 0.1, "f0": 3.0},
+            correlation=np.eye(2),
+            covariance=np.eye(2),
+            cost=0.0,
+            converged=True,
+            n_data=n_data,
+            condition_number=float("inf"),
+            residual_scale=1.0,
+            warnings=[],
+            timings={"total": 1.0, "compile": 0.5, "solve": 0.5},
+            solver="lm",
+            starts=[],
+            residuals=np.zeros(n_data),
+            scene=None,
+            objective=SimpleNamespace(observations=obs, sigma_known=sigma_known),
+            rms_residual=0.0,
+        )
+
+    text = fitting.summary(result(True, 2))
+    assert "no sigmas" not in text and "no degrees of freedom" in text
+    assert "2 observations for 2 parameters" in text and "condition number infinite" in text
+    text = fitting.summary(result(False, 1))
+    assert "to 1 observation (" in text and "no sigmas: no chi-square" in text
