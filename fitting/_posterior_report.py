@@ -11,7 +11,7 @@ from jaximpact._paths import atomic_output
 from ._data import OBSERVABLES
 from ._objective import FitError
 from ._posterior import PosteriorResult, posterior_predictive
-from ._report import _atomic_savefig, _num
+from ._report import _atomic_savefig, _num, observable_label, parameter_label
 
 __all__ = [
     "plot_corner",
@@ -171,20 +171,28 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
                 for q in (s["q05"], s["q95"]):
                     ax.axvline(q, color="k", ls=":", lw=1)
                 ax.set_yticks([])
+                # The marginal: median with the 90 % interval around it.
+                ax.set_title(
+                    f"{names[i]} = {s['median']:.3g}{_unit(names[i])}\n"
+                    f"90 %: [{s['q05']:.3g}, {s['q95']:.3g}]",
+                    fontsize=8,
+                )
             else:
                 ax.plot(flat[pick, j], flat[pick, i], ".", ms=1.5, alpha=0.4, color="C0")
                 if best is not None:
                     ax.plot(best[names[j]], best[names[i]], "r+", ms=10)
             if i == p - 1:
-                ax.set_xlabel(names[j])
+                ax.set_xlabel(parameter_label(names[j]))
             if j == 0 and i > 0:
-                ax.set_ylabel(names[i])
+                ax.set_ylabel(parameter_label(names[i]))
     fig.suptitle(
-        f"posterior ({result.chains} chains x {result.draws.shape[1]}); "
-        + ("converged" if result.converged else "NOT CONVERGED"),
+        f"posterior ({result.chains} chains x {result.draws.shape[1]} draws); "
+        + ("converged" if result.converged else "NOT CONVERGED")
+        + ("; red +: the least-squares optimum" if best is not None and p > 1 else ""),
         fontsize=9,
     )
-    fig.tight_layout()
+    # Room for the title above the panels (tight_layout alone would let it be cut).
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (2.4 * p)))
     _atomic_savefig(fig, Path(path))
     plt.close(fig)
 
@@ -230,11 +238,29 @@ def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
             ms=3,
             label="data",
         )
-        ax.set_ylabel(name)
+        ax.set_ylabel(observable_label(name))
         ax.set_xscale("log" if not x_is_angle else "linear")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
     axes[0, 0].legend(fontsize=8)
+    axes[0, 0].set_title(
+        "posterior predictive: "
+        + "; ".join(
+            f"{nm} = {result.summary[nm]['median']:.3g} [{result.summary[nm]['q05']:.3g}, "
+            f"{result.summary[nm]['q95']:.3g}]{_unit(nm)}"
+            for nm in result.params
+        )
+        + " (median [90 %])",
+        fontsize=8,
+        wrap=True,
+    )
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
     plt.close(fig)
+
+
+def _unit(name: str) -> str:
+    from jaximpact._ranges import RANGES
+
+    unit = RANGES[name].unit
+    return "" if unit == "1" else f" {unit}"

@@ -227,8 +227,12 @@ def plot_profile(path, p: Profile) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ._report import _atomic_savefig
+    from jaximpact._ranges import RANGES
 
+    from ._report import _atomic_savefig, parameter_label
+
+    unit = RANGES[p.name].unit
+    unit = "" if unit == "1" else f" {unit}"
     fig, ax = plt.subplots(figsize=(5.6, 3.6))
     ax.plot(p.grid, p.deviance, "o-", color="C0", label="profile deviance")
     ax.plot(
@@ -239,11 +243,19 @@ def plot_profile(path, p: Profile) -> None:
         label="quadratic (from stderr)",
     )
     ax.axhline(CHI2_95, color="k", ls=":", lw=1, label="95 % (3.84)")
-    for x in (p.lower, p.upper):
+    for k, x in enumerate((p.lower, p.upper)):
         if math.isfinite(x):
-            ax.axvline(x, color="C0", lw=0.8)
-    ax.set_xlabel(p.name)
-    ax.set_ylabel("2 (cost - cost_min) / s^2")
+            first = k == 0 or not math.isfinite(p.lower)
+            label = "likelihood-ratio 95 % interval" if first else None
+            ax.axvline(x, color="C0", lw=0.8, label=label)
+    ax.set_xlabel(parameter_label(p.name))
+    ax.set_ylabel("deviance 2 (cost - cost_min) / s^2 (dimensionless)")
+    show = lambda x: f"{x:.4g}" if math.isfinite(x) else "?"  # noqa: E731
+    ax.set_title(
+        f"{p.name} = {p.value:.4g} \u00b1 {show(p.stderr)}{unit}; likelihood-ratio 95 %: "
+        f"[{show(p.lower)}, {show(p.upper)}]{unit}",
+        fontsize=9,
+    )
     ax.set_ylim(
         0,
         max(

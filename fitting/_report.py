@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -178,9 +179,13 @@ def plot_fit(path, result: FitResult) -> None:
     """Plot each observable's data (with error bars where sigma is given) and the fitted model.
 
     The x axis is the incidence angle when the data have a single speed, else the speed. The
-    model is drawn at the observed impacts (open markers) and, where the data lie on lines of
-    one varying coordinate, as a dense curve along each line. Written atomically (temporary file
-    in the same directory, then :func:`os.replace`), with matplotlib's Agg backend.
+    model is drawn at the observed impacts (open squares) and, where the data lie on lines of
+    one varying coordinate, as a dense curve along each line, one legend entry per curve. The
+    title gives the fitted values with their standard errors and the fit's status. Every axis
+    carries its unit. The model at the data and along the curves is one ``simulate`` call
+    (the compact program, rebound outputs only: one compilation of the smaller program).
+    Written atomically (temporary file in the same directory, then :func:`os.replace`; through
+    a symbolic link to its target), with matplotlib's Agg backend.
 
     Arguments:
         path: output image (format from the suffix, e.g. ``.png``, ``.pdf``).
@@ -195,19 +200,28 @@ def plot_fit(path, result: FitResult) -> None:
 
     objective = result.objective
     obs = objective.observations
-    model, _ = objective.model_values(result.theta)
+    imp = obs.impacts
     x_is_angle = np.unique(obs.speed).size == 1
     x = obs.angle_deg if x_is_angle else obs.speed
     names = [n for n in OBSERVABLES if np.any(obs.observable == n)]
-    curves = _curves(obs, x_is_angle) if not obs.impacts.overrides else []
-    grid_results = None
-    if curves:
-        speed = np.concatenate([c["speed"] for c in curves])
-        angle = np.concatenate([c["angle"] for c in curves])
-        omega = np.concatenate([c["omega0"] for c in curves])
-        grid_results = jaximpact.simulate(
-            result.scene, speed, angle, omega, method=objective.method
+    curves = _curves(obs, x_is_angle) if not imp.overrides else []
+    if imp.overrides:  # per-impact parameters: the model at the data only
+        model, _ = objective.model_values(result.theta)
+        grid_results = None
+    else:
+        parts = [(imp.speed, imp.angle_deg, imp.omega0)]
+        parts += [(c["speed"], c["angle"], c["omega0"]) for c in curves]
+        speed, angle, omega = (np.concatenate([q[k] for q in parts]) for k in range(3))
+        everything = jaximpact.simulate(
+            result.scene.replace(solver={"outputs": "rebound"}),
+            speed,
+            angle,
+            omega,
+            method=objective.method,
+            program="compact",
         )
+        model = _observation_values(obs, everything)
+        grid_results = everything
 
     fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
     for ax, name in zip(axes[:, 0], names, strict=True):
@@ -220,29 +234,72 @@ def plot_fit(path, result: FitResult) -> None:
             fmt="o",
             color="k",
             ms=4,
-            label="data",
+            label="data" + (" (1 sigma bars)" if np.any(sigma) else ""),
         )
-        ax.plot(x[sel], model[sel], "s", mfc="none", color="C0", ms=6, label="model at data")
+        ax.plot(x[sel], model[sel], "s", mfc="none", color="C0", ms=6, label="model at the data")
         if grid_results is not None and name != "captured":
-            start = 0
-            for c in curves:
+            start = imp.speed.size
+            for k, c in enumerate(curves):
                 stop = start + c["speed"].size
                 y = np.asarray(getattr(grid_results, name))[start:stop]
-                ax.plot(c["x"], y, "-", color="C0", lw=1)
+                ax.plot(c["x"], y, "-", color=f"C{k + 1}", lw=1.2, label=c["label"])
                 start = stop
-        unit = f" ({_UNITS[name]})" if _UNITS[name] else ""
-        ax.set_ylabel(name + unit)
+        ax.set_ylabel(observable_label(name))
+        if not x_is_angle:
+            ax.set_xscale("log")
         ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="best")
     axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
-    axes[0, 0].legend(fontsize=8)
-    fitted = ", ".join(f"{n} = {result.values[n]:.4g}" for n in result.params)
+    status = "" if result.converged else f" ({result.status.upper()})"
     axes[0, 0].set_title(
-        f"fit: {fitted}" + ("" if result.converged else f" ({result.status.upper()})"),
-        fontsize=9,
+        "\n".join(textwrap.wrap(f"fit{status}: {fitted_values_text(result)}", 80)), fontsize=9
     )
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
     plt.close(fig)
+
+
+def observable_label(name: str) -> str:
+    """An axis label with the unit: ``omega_out (rad/s)``, ``cor_n (dimensionless)``."""
+    return f"{name} ({_UNITS[name] or 'dimensionless'})"
+
+
+def parameter_label(name: str) -> str:
+    """A fitted parameter with its SI unit: ``f0 (N/m)``, ``friction (dimensionless)``."""
+    from jaximpact._ranges import RANGES
+
+    unit = RANGES[name].unit
+    return f"{name} ({'dimensionless' if unit == '1' else unit})"
+
+
+def fitted_values_text(result: FitResult) -> str:
+    """``friction = 0.0957 +- 0.0064; f0 = 312 +- 25 N/m`` (``+- ?`` where undetermined)."""
+    from jaximpact._ranges import RANGES
+
+    parts = []
+    for n in result.params:
+        unit = RANGES[n].unit
+        e = result.stderr[n]
+        err = f"{e:.2g}" if math.isfinite(e) else "?"
+        unit = "" if unit == "1" else f" {unit}"
+        parts.append(f"{n} = {result.values[n]:.4g} \u00b1 {err}{unit}")
+    return "; ".join(parts)
+
+
+def _observation_values(obs, res) -> np.ndarray:
+    """The model value of each observation from a ``simulate`` result whose first impacts are
+    ``obs.impacts`` (``captured``: 1.0 or 0.0; NaN where the impact failed)."""
+    k = obs.impact_index
+    status = np.asarray(res.status)[: obs.impacts.speed.size][k]
+    values = np.full(len(obs), np.nan)
+    for name in np.unique(obs.observable):
+        sel = obs.observable == name
+        if name == "captured":
+            values[sel] = (status[sel] == 1).astype(float)
+        else:
+            values[sel] = np.asarray(getattr(res, str(name)), float)[k[sel]]
+    values[status >= 2] = np.nan
+    return values
 
 
 def _curves(obs, x_is_angle, points=60, max_curves=8):
@@ -267,7 +324,18 @@ def _curves(obs, x_is_angle, points=60, max_curves=8):
                 continue
             grid = np.geomspace(imp.speed[on].min(), imp.speed[on].max(), points)
             speed, angle = grid, np.full(points, a)
-        curves.append({"x": grid, "speed": speed, "angle": angle, "omega0": np.full(points, b)})
+        spin = f", omega0 {b:g} rad/s" if any(w for _, w in keys) else ""
+        where = f"{a:g} m/s" if x_is_angle else f"{a:g} deg"
+        label = f"model, {where}{spin}"
+        curves.append(
+            {
+                "x": grid,
+                "speed": speed,
+                "angle": angle,
+                "omega0": np.full(points, b),
+                "label": label,
+            }
+        )
     return curves
 
 

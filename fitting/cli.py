@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
 __all__ = ["add_fit_command", "cmd_fit"]
 
@@ -308,7 +309,8 @@ def cmd_fit(args) -> int:
     print(f"scene: {describe_scene_source(scene_path)}")
     print(summary(result))
     document = result_dict(result)
-    outputs = [(args.plot, lambda path: plot_fit(path, result))]
+    drawn = lambda what, draw: _drawn(what, draw, progress)  # noqa: E731
+    outputs = [(args.plot, drawn("the fitted model", lambda path: plot_fit(path, result)))]
     failed = [] if result.converged else [f"fit {result.message}"]
     if args.profile is not None and result.converged:
         from ._profile import plot_profile, profile, profile_summary
@@ -316,7 +318,9 @@ def cmd_fit(args) -> int:
         prof = profile(result, args.profile, points=args.profile_points, progress=progress)
         print(profile_summary(prof))
         document["profile"] = prof.as_dict()
-        outputs.append((args.profile_plot, lambda path: plot_profile(path, prof)))
+        outputs.append(
+            (args.profile_plot, drawn("the profile", lambda path: plot_profile(path, prof)))
+        )
     if args.posterior and result.converged:
         from ._posterior import sample_posterior
         from ._posterior_report import (
@@ -345,8 +349,11 @@ def cmd_fit(args) -> int:
         add_to_result_dict(document, post)
         outputs += [
             (args.draws, lambda path: write_draws(path, post)),
-            (args.corner, lambda path: plot_corner(path, post)),
-            (args.predictive, lambda path: plot_predictive(path, post)),
+            (args.corner, drawn("the posterior draws", lambda path: plot_corner(path, post))),
+            (
+                args.predictive,
+                drawn("the posterior predictive", lambda path: plot_predictive(path, post)),
+            ),
         ]
         if not post.converged:
             failed.append(f"posterior {post.message}")
@@ -365,6 +372,26 @@ def cmd_fit(args) -> int:
             print(f"error: {reason}", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return 0
+
+
+def _drawn(what: str, draw, progress: bool):
+    """``draw(path)``, saying on stderr (one line) what it draws and how long it took: a plot
+    of the model simulates it again (seconds, mostly compiling), which would otherwise look
+    like a hang after the report."""
+
+    def write(path):
+        if not progress:
+            return draw(path)
+        print(f"drawing {path} ({what}) ...", end="", file=sys.stderr, flush=True)
+        start = time.perf_counter()
+        try:
+            draw(path)
+        except BaseException:
+            print(" failed", file=sys.stderr, flush=True)
+            raise
+        print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+
+    return write
 
 
 def _parse_priors(items, names) -> dict:

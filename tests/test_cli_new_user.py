@@ -628,3 +628,132 @@ def test_fit_summary_with_sigmas_never_says_no_sigmas():
     assert "2 observations for 2 parameters" in text and "condition number infinite" in text
     text = fitting.summary(result(False, 1))
     assert "to 1 observation (" in text and "no sigmas: no chi-square" in text
+
+
+def _captured_figure(monkeypatch, module):
+    """Replace a plotting module's file writer; returns the list that receives the figure."""
+    figures = []
+    monkeypatch.setattr(module, "_atomic_savefig", lambda fig, path: figures.append(fig))
+    return figures
+
+
+def test_fit_plot_labels_every_curve_and_axis(tmp_path, monkeypatch):
+    """Item 8: the model curve in the legend, one label per curve (the per-angle curves of a
+    synthetic fit had none), units on every axis, the fitted values with their uncertainty."""
+    import fitting
+    import fitting._report as report
+
+    data = tmp_path / "d.csv"
+    rows = [f"{v},{a},0.5,0.8" for a in (20.0, 40.0) for v in (1.0, 2.0, 3.0)]
+    data.write_text("speed,angle_deg,cor_n,cor_t\n" + "\n".join(rows) + "\n")
+    scene = jaximpact.load_scene("kharaz2001")
+    objective = fitting.Objective(scene, data, ["friction"], method="tsit5")
+    result = fitting.FitResult(
+        params=("friction",),
+        values={"friction": 0.1},
+        stderr={"friction": 0.0064},
+        correlation=np.eye(1),
+        covariance=np.eye(1),
+        cost=0.0,
+        converged=True,
+        n_data=12,
+        condition_number=1.0,
+        residual_scale=1.0,
+        warnings=[],
+        timings={"total": 1.0, "compile": 0.5, "solve": 0.5},
+        solver="lm",
+        starts=[],
+        residuals=np.zeros(12),
+        scene=objective.scene_at({"friction": 0.1}),
+        objective=objective,
+    )
+    figures = _captured_figure(monkeypatch, report)
+    report.plot_fit(tmp_path / "fit.png", result)
+    (fig,) = figures
+    axes = fig.axes
+    assert [ax.get_ylabel() for ax in axes] == ["cor_n (dimensionless)", "cor_t (dimensionless)"]
+    assert axes[-1].get_xlabel() == "impact speed (m/s)"
+    for ax in axes:
+        curves = [line for line in ax.get_lines() if line.get_linestyle() == "-"]
+        assert sorted(line.get_label() for line in curves) == ["model, 20 deg", "model, 40 deg"]
+        assert len({line.get_color() for line in curves}) == 2  # told apart by colour too
+    legend = [t.get_text() for t in axes[0].get_legend().get_texts()]
+    assert {"model, 20 deg", "model, 40 deg", "model at the data", "data"} <= set(legend)
+    assert "friction = 0.1 \u00b1 0.0064" in axes[0].get_title()
+
+
+def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monkeypatch):
+    """Item 8: the profile's x axis has the parameter's unit; the corner plot's title is not
+    cut off and does not overlap the panels, whose marginals give value and interval."""
+    from types import SimpleNamespace
+
+    import fitting._posterior_report as posterior_report
+    import fitting._report as report
+    from fitting._profile import Profile, plot_profile
+
+    figures = _captured_figure(monkeypatch, report)
+    grid = np.linspace(250.0, 350.0, 7)
+    prof = Profile(
+        "f0", grid, ((grid - 300) / 20) ** 2, {}, np.ones(7, bool), 300.0, 20.0, 261.0, 339.0
+    )
+    plot_profile(tmp_path / "p.png", prof)
+    (fig,) = figures
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "f0 (N/m)" and "(dimensionless)" in ax.get_ylabel()
+    assert "f0 = 300 \u00b1 20 N/m" in ax.get_title() and "[261, 339] N/m" in ax.get_title()
+
+    figures = _captured_figure(monkeypatch, posterior_report)
+    rng = np.random.default_rng(0)
+    draws = np.stack([rng.normal(0.9, 0.1, (4, 200)), rng.normal(300, 20, (4, 200))], axis=-1)
+    summary = {
+        n: {
+            "median": float(np.median(d)),
+            "q05": float(np.quantile(d, 0.05)),
+            "q95": float(np.quantile(d, 0.95)),
+        }
+        for n, d in (("C_A", draws[..., 0]), ("f0", draws[..., 1]))
+    }
+    post = SimpleNamespace(
+        params=("C_A", "f0"),
+        draws=draws,
+        fit=SimpleNamespace(values={"C_A": 0.9, "f0": 300.0}),
+        summary=summary,
+        chains=4,
+        converged=True,
+    )
+    posterior_report.plot_corner(tmp_path / "c.png", post)
+    (fig,) = figures
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    title = fig._suptitle.get_window_extent(renderer)
+    assert 0 <= title.y0 and title.y1 <= fig.bbox.y1 and 0 <= title.x0 and title.x1 <= fig.bbox.x1
+    for ax in fig.axes:
+        if ax.axison:
+            top = ax.get_tightbbox(renderer)
+            assert top.y1 <= title.y0 + 1, "a panel overlaps the title"
+    assert fig.axes[2].get_xlabel() == "C_A (s/m)" and fig.axes[3].get_xlabel() == "f0 (N/m)"
+    s = summary["C_A"]
+    assert fig.axes[0].get_title() == (
+        f"C_A = {s['median']:.3g} s/m\n90 %: [{s['q05']:.3g}, {s['q95']:.3g}]"
+    )
+
+
+def test_fit_plot_says_it_is_drawing(tmp_path):
+    """Item 8: `--plot` spent seconds simulating the model in silence after the report; it now
+    costs less (one compact simulate for the data and the curves) and says what it draws and
+    how long it took, on one line of stderr."""
+    import re
+
+    png = tmp_path / "fit.png"
+    proc = run("fit", "kharaz2001", "--params", "friction", "--plot", png)
+    assert proc.returncode == 0, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("drawing")]
+    assert len(lines) == 1, proc.stderr
+    assert re.fullmatch(
+        rf"drawing {re.escape(str(png))} \(the fitted model\) \.\.\. [0-9.]+ s", lines[0]
+    )
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"wrote {png}" in proc.stdout
