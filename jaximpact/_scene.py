@@ -31,6 +31,17 @@ def _array(x):
     return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
+def _numbers(field: str):
+    """The converter of a float field: refuses text (``"1.0"`` is not silently a number),
+    booleans and empty arrays by the field's name, then makes a float array."""
+
+    def convert(x):
+        _argument_shape(field, x)
+        return _array(x)
+
+    return convert
+
+
 def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
@@ -87,8 +98,8 @@ def _show(v):
 class Particle(eqx.Module):
     """The sphere. **Arguments:** `radius` (m, > 0), `density` (kg/m^3, > 0)."""
 
-    radius: jax.Array = eqx.field(converter=_array)
-    density: jax.Array = eqx.field(converter=_array)
+    radius: jax.Array = eqx.field(converter=_numbers("particle.radius"))
+    density: jax.Array = eqx.field(converter=_numbers("particle.density"))
 
     def __check_init__(self):
         check_input("particle.radius", "radius", self.radius)
@@ -113,12 +124,12 @@ class Contact(eqx.Module):
       ``model.tangential = "mindlin"`` (0, the default, means "not given").
     """
 
-    K: jax.Array = eqx.field(converter=_array)
-    f0: jax.Array = eqx.field(converter=_array)
-    C_A: jax.Array = eqx.field(converter=_array)
-    C_H: jax.Array = eqx.field(converter=_array)
-    friction: jax.Array = eqx.field(converter=_array)
-    G_star: jax.Array = eqx.field(converter=_array, default=0.0)
+    K: jax.Array = eqx.field(converter=_numbers("contact.K"))
+    f0: jax.Array = eqx.field(converter=_numbers("contact.f0"))
+    C_A: jax.Array = eqx.field(converter=_numbers("contact.C_A"))
+    C_H: jax.Array = eqx.field(converter=_numbers("contact.C_H"))
+    friction: jax.Array = eqx.field(converter=_numbers("contact.friction"))
+    G_star: jax.Array = eqx.field(converter=_numbers("contact.G_star"), default=0.0)
 
     def __check_init__(self):
         for name in ("K", "f0", "C_A", "C_H", "friction", "G_star"):
@@ -145,7 +156,7 @@ class Model(eqx.Module):
     adhesion: bool = eqx.field(static=True, default=True)
     rolling_moments: str = eqx.field(static=True, default="analytical")
     friction_load: str = eqx.field(static=True, default="net")
-    lambda_: jax.Array = eqx.field(converter=_array, default=0.0)
+    lambda_: jax.Array = eqx.field(converter=_numbers("model.lambda"), default=0.0)
     tangential: str = eqx.field(static=True, default="rigid")
 
     def __check_init__(self):
@@ -172,9 +183,9 @@ class Impact(eqx.Module):
     """One impact: `speed` (m/s, > 0), `angle_deg` (from the normal, in (-90, 90)),
     `omega0` (rad/s; positive with a positive angle is the rolling sense)."""
 
-    speed: jax.Array = eqx.field(converter=_array)
-    angle_deg: jax.Array = eqx.field(converter=_array, default=0.0)
-    omega0: jax.Array = eqx.field(converter=_array, default=0.0)
+    speed: jax.Array = eqx.field(converter=_numbers("impact.speed"))
+    angle_deg: jax.Array = eqx.field(converter=_numbers("impact.angle_deg"), default=0.0)
+    omega0: jax.Array = eqx.field(converter=_numbers("impact.omega0"), default=0.0)
 
     def __check_init__(self):
         check_impact(self.speed, self.angle_deg, self.omega0, prefix="impact.")
@@ -205,7 +216,7 @@ def _argument_shape(name: str, value) -> tuple:
         kinds = {"b": "booleans", "U": "text", "S": "text", "c": "complex numbers"}
         raise SceneError(f"{wrong}, got {kinds.get(dtype.kind, f'values of type {dtype}')}")
     if 0 in shape:
-        raise SceneError(f"{name} is empty (shape {shape}): give at least one impact")
+        raise SceneError(f"{name} is empty (shape {shape}): give at least one value")
     return tuple(shape)
 
 

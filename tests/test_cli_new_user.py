@@ -534,6 +534,11 @@ def test_python_api_errors_name_the_argument():
         with pytest.raises(jaximpact.SceneError) as err:
             jaximpact.simulate(*args)
         assert message in str(err.value), (args, str(err.value))
+    # Scene values too: the text "1.0" is no number there either.
+    for value, message in (("1.0", "got the text '1.0'"), ([], "is empty"), (True, "booleans")):
+        with pytest.raises(jaximpact.SceneError) as err:
+            scene.replace(contact={"f0": value})
+        assert str(err.value).startswith("contact.f0 ") and message in str(err.value)
 
 
 def test_fit_refuses_fewer_observations_than_parameters_before_compiling(tmp_path):
