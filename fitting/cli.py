@@ -132,7 +132,9 @@ def _parse_init(items) -> dict[str, float]:
                 raise ValueError
             out[name.strip()] = float(text)
         except ValueError:
-            raise FitError(f"--init expects NAME=VALUE, got {item!r}") from None
+            raise FitError(
+                f"--init expects NAME=VALUE, got {item!r}{_swallowed('--init', item)}"
+            ) from None
     return out
 
 
@@ -147,6 +149,17 @@ def _looks_positional(item: str) -> bool:
         or item in jaximpact.embedded_scenes()
         or item.lower().endswith((".csv", ".toml"))
         or os.path.exists(item)
+    )
+
+
+def _swallowed(option: str, item: str, command: str = "fit") -> str:
+    """A hint for an option that took a positional argument as one of its words, or ``""``."""
+    if not _looks_positional(item):
+        return ""
+    first = "the scene and data" if command == "fit" else "the scene"
+    return (
+        f" ({item!r} looks like an argument: {option} takes every word up to the next option; "
+        f"give {first} before the options)"
     )
 
 
@@ -213,6 +226,10 @@ def cmd_fit(args) -> int:
 
     params = split_names("--params", args.params, FITTABLE)
     if not args.files:
+        for option, items in (("--init", args.init), ("--prior", args.prior)):
+            for item in items:
+                if _swallowed(option, item):
+                    raise FitError(f"missing DATA{_swallowed(option, item)}")
         raise FitError(
             "missing DATA: jaximpact fit [SCENE] DATA --params NAME[,NAME...] (the data: an "
             f"embedded data set, {', '.join(EMBEDDED_DATA)}, or a CSV file)"
@@ -406,6 +423,7 @@ def _parse_priors(items, names) -> dict:
         if not sep:
             raise FitError(
                 f"--prior expects NAME=loguniform:LO:HI or NAME=normal:MU:SD, got {item!r}"
+                + _swallowed("--prior", item)
             )
         if name not in names:
             raise FitError(f"--prior {name}: not among the fitted --params {list(names)}")
@@ -483,7 +501,10 @@ def cmd_design(args) -> int:
                 raise ValueError
             sigma[name.strip()] = float(text)
         except ValueError:
-            raise FitError(f"--sigma expects OBSERVABLE=SIGMA, got {item!r}") from None
+            raise FitError(
+                f"--sigma expects OBSERVABLE=SIGMA, got {item!r}"
+                + _swallowed("--sigma", item, "design")
+            ) from None
     if args.n < 1:
         raise FitError(f"--n must be an integer >= 1, got {args.n}")
     if args.max_draws < 1:

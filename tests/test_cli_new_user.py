@@ -479,6 +479,10 @@ def test_one_line_messages_for_bad_options_and_names(tmp_path):
     assert "bogus" in line and "simulate" in line
     line = one_line_error(run("fit", "--params", "friction", "kharaz2001"))
     assert "'kharaz2001'" in line and "comma list" in line and "--params friction" in line
+    line = one_line_error(
+        run("fit", "--init", "friction=0.2", "kharaz2001", "--params", "friction")
+    )
+    assert "missing DATA" in line and "'kharaz2001' looks like an argument: --init" in line
     line = one_line_error(run("fit", tmp_path / "nosuch.csv", "--params", "friction"))
     assert "not found" in line and "kharaz2001, kharaz2001_mindlin" in line
     from fitting._objective import FITTABLE
