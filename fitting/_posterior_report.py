@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -185,14 +186,16 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
                 ax.set_xlabel(parameter_label(names[j]))
             if j == 0 and i > 0:
                 ax.set_ylabel(parameter_label(names[i]))
-    fig.suptitle(
+    title = (
         f"posterior ({result.chains} chains x {result.draws.shape[1]} draws); "
         + ("converged" if result.converged else "NOT CONVERGED")
-        + ("; red +: the least-squares optimum" if best is not None and p > 1 else ""),
-        fontsize=9,
+        + ("; red +: the least-squares optimum" if best is not None and p > 1 else "")
     )
-    # Room for the title above the panels (tight_layout alone would let it be cut).
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (2.4 * p)))
+    # Wrapped to the figure's width (about 11 characters of 9-point text per inch), with room
+    # above the panels for every line (tight_layout alone would let the title be cut).
+    lines = textwrap.wrap(title, int(11 * 2.4 * p))
+    fig.suptitle("\n".join(lines), fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 1 - (0.1 + 0.2 * len(lines)) / (2.4 * p)))
     _atomic_savefig(fig, Path(path))
     plt.close(fig)
 

@@ -713,7 +713,8 @@ def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monk
     assert ax.get_xlabel() == "f0 (N/m)" and "(dimensionless)" in ax.get_ylabel()
     assert "f0 = 300 \u00b1 20 N/m" in ax.get_title() and "[261, 339] N/m" in ax.get_title()
 
-    figures = _captured_figure(monkeypatch, posterior_report)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
     rng = np.random.default_rng(0)
     draws = np.stack([rng.normal(0.9, 0.1, (4, 200)), rng.normal(300, 20, (4, 200))], axis=-1)
     summary = {
@@ -724,32 +725,35 @@ def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monk
         }
         for n, d in (("C_A", draws[..., 0]), ("f0", draws[..., 1]))
     }
-    post = SimpleNamespace(
-        params=("C_A", "f0"),
-        draws=draws,
-        fit=SimpleNamespace(values={"C_A": 0.9, "f0": 300.0}),
-        summary=summary,
-        chains=4,
-        converged=True,
-    )
-    posterior_report.plot_corner(tmp_path / "c.png", post)
-    (fig,) = figures
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    renderer = canvas.get_renderer()
-    title = fig._suptitle.get_window_extent(renderer)
-    assert 0 <= title.y0 and title.y1 <= fig.bbox.y1 and 0 <= title.x0 and title.x1 <= fig.bbox.x1
-    for ax in fig.axes:
-        if ax.axison:
-            top = ax.get_tightbbox(renderer)
-            assert top.y1 <= title.y0 + 1, "a panel overlaps the title"
-    assert fig.axes[2].get_xlabel() == "C_A (s/m)" and fig.axes[3].get_xlabel() == "f0 (N/m)"
-    s = summary["C_A"]
-    assert fig.axes[0].get_title() == (
-        f"C_A = {s['median']:.3g} s/m\n90 %: [{s['q05']:.3g}, {s['q95']:.3g}]"
-    )
+    for params in (("C_A", "f0"), ("C_A",)):
+        figures = _captured_figure(monkeypatch, posterior_report)
+        post = SimpleNamespace(
+            params=params,
+            draws=draws[..., : len(params)],
+            fit=SimpleNamespace(values={"C_A": 0.9, "f0": 300.0}),
+            summary=summary,
+            chains=4,
+            converged=True,
+        )
+        posterior_report.plot_corner(tmp_path / "c.png", post)
+        (fig,) = figures
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        title = fig._suptitle.get_window_extent(renderer)
+        inside = 0 <= title.x0 and title.x1 <= fig.bbox.x1 and title.y1 <= fig.bbox.y1
+        assert inside, (params, title, fig.bbox)
+        for ax in fig.axes:
+            if ax.axison:
+                assert ax.get_tightbbox(renderer).y1 <= title.y0 + 1, "a panel overlaps the title"
+        s = summary["C_A"]
+        assert fig.axes[0].get_title() == (
+            f"C_A = {s['median']:.3g} s/m\n90 %: [{s['q05']:.3g}, {s['q95']:.3g}]"
+        )
+        bottom = fig.axes[-len(params) :]
+        assert [ax.get_xlabel() for ax in bottom] == [
+            f"{n} ({u})" for n, u in zip(params, ("s/m", "N/m")[: len(params)], strict=True)
+        ]
 
 
 def test_fit_plot_says_it_is_drawing(tmp_path):
