@@ -252,7 +252,7 @@ def plot_fit(path, result: FitResult) -> None:
     axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
     status = "" if result.converged else f" ({result.status.upper()})"
     axes[0, 0].set_title(
-        "\n".join(textwrap.wrap(f"fit{status}: {fitted_values_text(result)}", 80)), fontsize=9
+        "\n".join(textwrap.wrap(f"fit{status}: {fitted_values_text(result)}", 70)), fontsize=9
     )
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
