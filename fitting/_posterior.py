@@ -1,12 +1,11 @@
-"""Bayesian posterior of the fitted parameters by NUTS (blackjax), on jaximpact's derivatives.
+"""Bayesian posterior of the fitted parameters by Hamiltonian Monte Carlo (blackjax).
 
 The log density is written in the solver variables ``u`` of ``_transforms`` (with the Jacobian
 term of each prior, ``_priors``), plus one log noise factor per observable that has no sigma
-column. Its gradient uses the fit's own compiled residual-and-Jacobian program (forward mode,
-``_program``): blackjax calls a ``custom_jvp`` residual function whose value and Jacobian come
-from that program through ``jax.pure_callback``, so the sampler never traces the simulator
-(no second compilation; the fit's cache serves it) and never runs reverse mode through
-diffrax. The chains are a ``vmap``, so each call evaluates all chains as one batch.
+column. It calls the simulator directly, so the log density and its gradient (the simulator's
+own derivatives, see ``jaximpact._simulate``) are one compiled JAX program with the sampler's
+step around them. The chains are a ``vmap`` that moves in step (the same number of leapfrog
+steps for all), so each evaluation runs every chain's impacts as one batch.
 
 Likelihood (``r``: the fit's weighted residuals, ``(model - observed) / scale``):
 
@@ -34,7 +33,6 @@ from tqdm.auto import tqdm
 from ._fit import FitResult, fit
 from ._objective import FitError, Objective, check_names
 from ._priors import Prior, priors_for
-from ._program import ResidualProgram
 from ._transforms import dphys_du, to_physical, to_unbounded
 
 __all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
@@ -42,17 +40,34 @@ __all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
 LIKELIHOODS = ("gaussian", "student-t")
 #: A run with a larger split R-hat for any parameter is not called converged.
 MAX_RHAT = 1.01
-#: NUTS tree depth limit (at most 2^MAX_DOUBLINGS - 1 log-density evaluations per draw).
-MAX_DOUBLINGS = 8
+#: HMC trajectory length in units of the metric: a quarter period of a Gaussian posterior
+#: whose covariance the metric matches, where successive draws are independent.
+TRAJECTORY = math.pi / 2
+#: Most leapfrog steps of one transition (a step size collapsed by a bad region stops here).
+MAX_LEAPFROG = 64
 #: Default solver rtol of the posterior's evaluations in float64 (scenes that set their own
 #: rtol keep it). The sampler needs the log density to well under 0.1 and its gradient to a few
 #: per cent; rtol 1e-8 gives both with a wide margin (measured in BENCHMARKS.md: "Posterior
 #: and design") in about half the steps of the fit's default 1e-10.
 SAMPLING_RTOL = 1e-8
-#: Default warm-up steps per chain (see `_run_nuts`: it starts from the least-squares shape).
+#: Default warm-up steps per chain (see `_run_hmc`: it starts from the least-squares shape).
 WARMUP = 300
 #: Range of the sampled noise factors (log-uniform prior).
 NOISE_FACTOR_RANGE = (1e-3, 1e3)
+#: Samplers: the independence sampler (default, values only: every proposal of every chain
+#: evaluated in a few large batches) and HMC (gradients; for posteriors the independence
+#: proposal cannot cover). ``auto``: the independence sampler, HMC where its Pareto k > 0.7.
+SAMPLERS = ("auto", "independence", "hmc")
+#: Largest Pareto shape of the importance weights at which the independence sampler's
+#: proposal is trusted (Vehtari et al. 2024, "Pareto smoothed importance sampling").
+MAX_KHAT = 0.7
+#: Pilot draws that place the independence sampler's proposal.
+PILOT = 1000
+#: Proposal: Student-t with this many degrees of freedom, covariance inflated by this factor.
+PROPOSAL_NU = 7.0
+PROPOSAL_INFLATION = 1.15
+#: Points evaluated per compiled call of the independence sampler (times the impacts: lanes).
+BLOCK = 500
 
 
 @dataclass
@@ -69,8 +84,12 @@ class PosteriorResult:
         divergences: divergent transitions after warm-up (all chains).
         status: ``"converged"`` or ``"not converged"``; ``converged``; ``problems``.
         priors: ``{name: Prior}``; likelihood, nu.
-        step_size: per chain after adaptation; acceptance: mean acceptance rate.
-        evaluations: log-density evaluations (each for all chains at once).
+        sampler: ``"independence"`` or ``"hmc"``; khat: Pareto shape of the independence
+            proposal's importance weights (NaN for HMC).
+        step_size: HMC's per chain after adaptation (NaN for the independence sampler);
+            acceptance: mean acceptance rate.
+        evaluations: log-density evaluations (the independence sampler: points; HMC:
+            gradient evaluations of all chains at once).
         timings: seconds: ``fit``, ``compile``, ``warmup``, ``sampling``, ``total``.
         fit: the least-squares `FitResult` the chains started from (None for a toy oracle).
         log_density: ``(chains, draws)``.
@@ -95,8 +114,10 @@ class PosteriorResult:
     timings: dict[str, float]
     log_density: np.ndarray
     fit: FitResult | None = None
-    program: ResidualProgram | None = field(default=None, repr=False)
+    program: Callable | None = field(default=None, repr=False)
     noise_groups: np.ndarray | None = field(default=None, repr=False)
+    sampler: str = "hmc"
+    khat: float = math.nan
 
     @property
     def chains(self) -> int:
@@ -110,32 +131,15 @@ class PosteriorResult:
 # -- the log density ------------------------------------------------------------------------
 
 
-def _residual_function(oracle: Callable, n: int, p: int, counter: list):
-    """``u -> r`` for JAX, computed on the host by ``oracle(U) -> (r, J)`` (``U``: ``(..., p)``),
-    with the Jacobian ``J`` as its derivative (``custom_jvp``)."""
-    dtype = jnp.result_type(float)
+def _model_residuals(objective: Objective, names):
+    """``u -> r``: the fit's weighted residuals as a JAX function (values and derivatives from
+    the simulator's step loop; no host round trip)."""
+    value, scale = objective._value, objective._scale
 
-    def host(u):
-        counter[0] += 1
-        r, jac = oracle(np.asarray(u, dtype=float))
-        return np.asarray(r, dtype), np.asarray(jac, dtype)
-
-    def call(u):
-        shapes = (
-            jax.ShapeDtypeStruct((n,), dtype),
-            jax.ShapeDtypeStruct((n, p), dtype),
-        )
-        return jax.pure_callback(host, shapes, u, vmap_method="broadcast_all")
-
-    @jax.custom_jvp
     def residuals(u):
-        return call(u)[0]
-
-    @residuals.defjvp
-    def _jvp(primals, tangents):
-        (u,), (du,) = primals, tangents
-        r, jac = call(u)
-        return r, jac @ du
+        theta = to_physical(names, u)
+        result = objective._simulate_impl(theta)
+        return objective.residuals_from_result(result, objective.hertz_time(theta), value, scale)
 
     return residuals
 
@@ -143,18 +147,25 @@ def _residual_function(oracle: Callable, n: int, p: int, counter: list):
 def _log_density(residuals, names, priors, groups, n_noise, likelihood, nu):
     """``z = (u, log noise factors) -> log posterior`` (up to a constant)."""
     p = len(names)
+    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu)
+    return lambda z: terms(z, residuals(z[:p]))
+
+
+def _posterior_terms(names, priors, groups, n_noise, likelihood, nu):
+    """``(z, r) -> log posterior`` given the residuals ``r`` at ``z``'s parameters."""
+    p = len(names)
     # Rows with a sigma use factor 1 (index n_noise, a fixed 0 appended to the log factors).
     index = jnp.asarray(np.where(groups >= 0, groups, n_noise))
     lo, hi = (math.log(v) for v in NOISE_FACTOR_RANGE)
 
-    def log_density(z):
+    def log_density(z, r):
         u, log_s = z[:p], z[p:]
         lp = sum(priors[n].log_density_u(n, u[i]) for i, n in enumerate(names))
         if n_noise:
             inside = jnp.all((log_s >= lo) & (log_s <= hi))
             lp = lp + jnp.where(inside, 0.0, -jnp.inf)
         log_scale = jnp.concatenate([log_s, jnp.zeros(1, z.dtype)])[index]
-        x = residuals(u) * jnp.exp(-log_scale)
+        x = r * jnp.exp(-log_scale)
         if likelihood == "gaussian":
             ll = -0.5 * x**2 - log_scale
         else:
@@ -178,38 +189,49 @@ def _noise_groups(objective: Objective) -> tuple[np.ndarray, tuple[str, ...]]:
 # -- the sampler ----------------------------------------------------------------------------
 
 
-def _run_nuts(log_density, z0, metric, *, warmup, draws, seed, target_accept, progress, counter):
-    """Warm-up then NUTS draws for every chain (rows of ``z0``). Returns draws ``(C, D, d)``,
-    log densities ``(C, D)``, divergent ``(C, D)``, acceptance ``(C, D)``, step sizes ``(C,)``
-    and the seconds of warm-up and sampling.
+def _run_hmc(log_density, z0, metric, *, warmup, draws, seed, target_accept, progress):
+    """Warm-up then draws of every chain (rows of ``z0``), all chains one batch.
 
-    The warm-up is shorter and shallower than Stan's windowed scheme because it starts from
-    the least-squares covariance ``metric`` (the posterior's own shape, the C_A-f0 ridge
-    included) instead of learning the metric from scratch:
+    Returns draws ``(C, D, d)``, log densities ``(C, D)``, divergent ``(C, D)``, acceptance
+    ``(C, D)``, the step size, the log-density evaluations (of the whole batch) and the
+    seconds of warm-up and sampling.
+
+    Each step is one HMC transition of every chain with the same number of leapfrog steps
+    (blackjax's HMC kernel, ``vmap``-ed): a trajectory of :data:`TRAJECTORY` (in units of the
+    metric, jittered by a factor drawn from [0.5, 1.5] per step) divided by the step size. The
+    chains thus stay in step, each evaluation of the log density fills the batch with all
+    chains, and no chain waits for a deeper tree (NUTS's cost under ``vmap``). The warm-up
+    starts from the least-squares covariance ``metric`` (the posterior's own shape, the C_A-f0
+    ridge included):
 
     1. first half: dual averaging of one step size shared by all chains, with ``metric``;
-    2. the metric re-estimated from the second quarter's draws of all chains pooled (4 chains
-       x W/4 draws; Stan's windows use one chain's few dozen), shrunk slightly towards
-       ``metric``;
+    2. the metric re-estimated from the second quarter's draws of all chains pooled, shrunk
+       slightly towards ``metric``;
     3. second half: dual averaging again with that metric.
-
-    One shared step size and metric keep the chains' trees of similar depth, which matters
-    because the chains are one batch: every log-density call evaluates all of them, so a
-    step costs as many calls as its deepest chain needs (measured in BENCHMARKS.md)."""
+    """
     import blackjax
     from blackjax.adaptation.step_size import dual_averaging_adaptation
 
-    key = jax.random.PRNGKey(seed)
-    k_warm, k_draw = jax.random.split(key)
     chains, dim = z0.shape
-    kernel = blackjax.nuts.build_kernel()
+    kernel = blackjax.hmc.build_kernel()
 
-    def one(k, state, step_size, inverse_mass_matrix):
-        return kernel(k, state, log_density, step_size, inverse_mass_matrix, MAX_DOUBLINGS)
+    def one(key, state, step_size, inverse_mass_matrix, n_leapfrog):
+        return kernel(key, state, log_density, step_size, inverse_mass_matrix, n_leapfrog)
 
-    step = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
+    # One compiled program for every step of warm-up and sampling (the step size, metric and
+    # leapfrog count are inputs).
+    step = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
     da_init, da_update, _ = dual_averaging_adaptation(target_accept)
     da_update = jax.jit(da_update)
+    rng = np.random.default_rng(seed)
+    keys = iter(jax.random.split(jax.random.PRNGKey(seed), warmup + draws))
+    evaluations = [1]
+
+    def transition(states, step_size, imm):
+        n = int(np.clip(np.ceil(rng.uniform(0.5, 1.5) * TRAJECTORY / step_size), 1, MAX_LEAPFROG))
+        evaluations[0] += n
+        key = jax.random.split(next(keys), chains)
+        return step(key, states, jnp.asarray(step_size), jnp.asarray(imm), jnp.asarray(n))
 
     def bar(total, what):
         return tqdm(
@@ -222,25 +244,22 @@ def _run_nuts(log_density, z0, metric, *, warmup, draws, seed, target_accept, pr
         )
 
     t0 = time.perf_counter()
-    states = jax.jit(jax.vmap(lambda z: blackjax.nuts.init(z, log_density)))(jnp.asarray(z0))
+    states = jax.jit(jax.vmap(lambda z: blackjax.hmc.init(z, log_density)))(jnp.asarray(z0))
     imm = np.asarray(metric, dtype=float)
     step_size = 0.5  # in units of the metric's standard deviations
     first = warmup // 2
     pooled = []
-    keys = jax.random.split(k_warm, max(warmup, 1))
     with bar(warmup, "warm-up") as progress_bar:
         for phase, (begin, stop) in enumerate(((0, first), (first, warmup))):
             da = da_init(step_size)
             for i in range(begin, stop):
-                states, info = step(
-                    jax.random.split(keys[i], chains), states, jnp.exp(da.log_step_size), imm
-                )
+                states, info = transition(states, float(np.exp(da.log_step_size)), imm)
                 accept = np.nan_to_num(np.asarray(info.acceptance_rate), nan=0.0)
                 da = da_update(da, float(np.mean(accept)))
                 if phase == 0 and i >= first // 2:
                     pooled.append(np.asarray(states.position))
                 progress_bar.update()
-                progress_bar.set_postfix(evaluations=counter[0], refresh=False)
+                progress_bar.set_postfix(evaluations=evaluations[0], refresh=False)
             if stop > begin:
                 step_size = float(np.exp(da.log_step_size_avg))
             if phase == 0 and len(pooled) * chains > 2 * dim:
@@ -249,16 +268,15 @@ def _run_nuts(log_density, z0, metric, *, warmup, draws, seed, target_accept, pr
 
     positions, lps, divergent, accept = [], [], [], []
     t0 = time.perf_counter()
-    keys = jax.random.split(k_draw, draws)
     with bar(draws, "draws") as progress_bar:
-        for i in range(draws):
-            states, info = step(jax.random.split(keys[i], chains), states, step_size, imm)
+        for _ in range(draws):
+            states, info = transition(states, step_size, imm)
             positions.append(np.asarray(states.position))
             lps.append(np.asarray(states.logdensity))
             divergent.append(np.asarray(info.is_divergent))
             accept.append(np.asarray(info.acceptance_rate))
             progress_bar.update()
-            progress_bar.set_postfix(evaluations=counter[0], refresh=False)
+            progress_bar.set_postfix(evaluations=evaluations[0], refresh=False)
     t_draw = time.perf_counter() - t0
     stack = lambda xs: np.swapaxes(np.stack(xs), 0, 1)  # noqa: E731
     return (
@@ -266,7 +284,8 @@ def _run_nuts(log_density, z0, metric, *, warmup, draws, seed, target_accept, pr
         stack(lps),
         stack(divergent),
         stack(accept),
-        np.full(chains, step_size),
+        step_size,
+        evaluations[0],
         t_warm,
         t_draw,
     )
@@ -346,9 +365,8 @@ def _summarize(x: np.ndarray) -> dict:
 
 
 def _sample(
-    oracle,
+    residuals,
     names,
-    n_data,
     u_center,
     cov_u,
     priors,
@@ -366,13 +384,18 @@ def _sample(
     target_accept,
     progress,
     z0=None,
+    sampler="auto",
+    batch_log_density=None,
 ) -> PosteriorResult:
-    """The sampler on any residual oracle ``U (..., p) -> (r, J)``: the path of
-    :func:`sample_posterior`, open to a toy problem with a known posterior."""
+    """The sampler on any residual function ``u -> r`` (JAX, differentiable): the path of
+    :func:`sample_posterior`, open to a toy problem with a known posterior.
+    ``batch_log_density``: ``Z (n, d) -> (n,)``, the independence sampler's (default: the
+    log density ``vmap``-ed)."""
     p, k = len(names), len(noise)
-    counter = [0]
-    residuals = _residual_function(oracle, n_data, p, counter)
+    starts_given = z0 is not None  # chains placed by hand: HMC from there
     log_density = _log_density(residuals, names, priors, np.asarray(groups), k, likelihood, nu)
+    if batch_log_density is None:
+        batch_log_density = jax.jit(jax.vmap(log_density))
     # Starts: the least-squares optimum plus a jitter of `jitter` standard errors.
     rng = np.random.default_rng(seed)
     cov_u = np.asarray(cov_u, dtype=float)
@@ -388,17 +411,39 @@ def _sample(
     # log of a fitted noise factor: variance about 1 / (2 n_k) for n_k observations
     for j in range(k):
         metric[p + j, p + j] = 0.5 / max(int(np.sum(np.asarray(groups) == j)), 1)
-    z, lp, divergent, accept, step_size, t_warm, t_draw = _run_nuts(
-        log_density,
-        z0,
-        metric,
-        warmup=warmup,
-        draws=draws,
-        seed=seed,
-        target_accept=target_accept,
-        progress=progress,
-        counter=counter,
-    )
+    center = np.concatenate([np.asarray(u_center, float), np.asarray(log_noise_center, float)])
+    khat, used = math.nan, "hmc"
+    if sampler in ("auto", "independence") and not starts_given:
+        z, lp, accept, khat, evaluations, t_warm, t_draw = _run_independence(
+            batch_log_density,
+            center,
+            metric,
+            chains=chains,
+            warmup=warmup,
+            draws=draws,
+            seed=seed,
+            progress=progress,
+        )
+        divergent, step_size, used = np.zeros(lp.shape, bool), math.nan, "independence"
+        if sampler == "auto" and not khat <= MAX_KHAT:
+            if progress:
+                print(
+                    f"posterior: the independence proposal misses part of the posterior "
+                    f"(Pareto k {khat:.2f} > {MAX_KHAT}); sampling by HMC",
+                    file=sys.stderr,
+                )
+            used = "hmc"
+    if used == "hmc":
+        z, lp, divergent, accept, step_size, evaluations, t_warm, t_draw = _run_hmc(
+            log_density,
+            z0,
+            metric,
+            warmup=warmup,
+            draws=draws,
+            seed=seed,
+            target_accept=target_accept,
+            progress=progress,
+        )
     theta = np.asarray(jax.vmap(jax.vmap(lambda u: to_physical(names, u)))(jnp.asarray(z[..., :p])))
     noise_draws = np.exp(z[..., p:])
     summary = {n: _summarize(theta[..., i]) for i, n in enumerate(names)}
@@ -407,6 +452,11 @@ def _sample(
     correlation = np.corrcoef(flat, rowvar=False) if p > 1 else np.ones((1, 1))
     n_div = int(np.sum(divergent))
     problems = judge(summary, n_div)
+    if used == "independence" and not khat <= MAX_KHAT:
+        problems.append(
+            f"the independence proposal misses part of the posterior (Pareto k {khat:.2f} > "
+            f"{MAX_KHAT}); use sampler='hmc'"
+        )
     status = "not converged" if problems else "converged"
     return PosteriorResult(
         params=tuple(names),
@@ -422,12 +472,144 @@ def _sample(
         priors=dict(priors),
         likelihood=likelihood,
         nu=float(nu),
-        step_size=step_size,
+        step_size=np.full(chains, step_size),
+        sampler=used,
+        khat=khat,
         acceptance=float(np.mean(accept)),
-        evaluations=counter[0],
+        evaluations=evaluations,
         timings={"warmup": t_warm, "sampling": t_draw},
         log_density=lp,
     )
+
+
+# -- the independence sampler ------------------------------------------------------------
+
+
+def _batch_log_density(objective: Objective, names, priors, groups, n_noise, likelihood, nu):
+    """``Z (n, d) -> log posterior (n,)``: every row's impacts in one simulation (a flat
+    batch of ``n x impacts`` lanes; the simulator under ``vmap`` costs 2-3x that)."""
+    p = len(names)
+    value, scale = objective._value, objective._scale
+    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu)
+
+    def log_density(Z):
+        theta = jax.vmap(lambda u: to_physical(names, u))(Z[:, :p])
+        result = objective._simulate_impl(tuple(theta[:, i : i + 1] for i in range(p)))
+
+        def one(result, th, z):
+            r = objective.residuals_from_result(result, objective.hertz_time(th), value, scale)
+            return terms(z, r)
+
+        return jax.vmap(one)(result, theta, Z)
+
+    return jax.jit(log_density)
+
+
+class _StudentT:
+    """Multivariate Student-t proposal: ``mean + L x / sqrt(g / nu)`` (``x ~ N(0, I)``,
+    ``g ~ chi2(nu)``); heavier tails than the posterior keep the importance weights bounded."""
+
+    def __init__(self, mean, cov, nu=PROPOSAL_NU):
+        self.mean, self.nu = np.asarray(mean, float), float(nu)
+        self.chol = np.linalg.cholesky(np.asarray(cov, float))
+
+    def sample(self, rng, n):
+        x = rng.standard_normal((n, len(self.mean)))
+        g = rng.chisquare(self.nu, (n, 1))
+        return self.mean + (x @ self.chol.T) / np.sqrt(g / self.nu)
+
+    def log_density(self, Z):
+        d = len(self.mean)
+        y = np.linalg.solve(self.chol, (np.asarray(Z) - self.mean).T).T
+        return -0.5 * (self.nu + d) * np.log1p(np.sum(y * y, axis=1) / self.nu)
+
+
+def _evaluate(log_density, Z, block, progress_bar):
+    """Log densities of the rows of ``Z``, ``block`` rows per call (one compiled shape: the
+    last block is padded with copies of its first row)."""
+    out = []
+    for i in range(0, len(Z), block):
+        part = Z[i : i + block]
+        pad = block - len(part)
+        if pad:
+            part = np.concatenate([part, np.repeat(part[:1], pad, axis=0)])
+        out.append(np.asarray(log_density(jnp.asarray(part)))[: block - pad])
+        progress_bar.update(block - pad)
+    return np.nan_to_num(np.concatenate(out), nan=-np.inf)
+
+
+def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, progress):
+    """Independence Metropolis-Hastings with a Student-t proposal fitted to the posterior.
+
+    1. Pilot: :data:`PILOT` draws from a t proposal on the least-squares optimum and
+       covariance (inflated by :data:`PROPOSAL_INFLATION`); their importance weights give the
+       posterior's mean and covariance, and the main proposal is the t on those.
+    2. Every chain proposes ``warmup + draws`` independent points from the main proposal: all
+       chains' proposals are evaluated as a few large batches (the lanes full), then each
+       chain accepts or rejects in turn (``min(1, w' / w)``, ``w = p / q``). A chain starts at
+       a pilot point drawn by its importance weight; its first ``warmup`` steps are dropped.
+
+    Returns draws ``(C, D, d)``, log densities ``(C, D)``, acceptance ``(C, D)``, the Pareto
+    shape ``k`` of the main proposal's importance weights (above 0.7 the proposal misses
+    part of the posterior), the evaluations and the seconds of the pilot and the chains.
+    """
+    from blackjax import pareto_khat
+
+    rng = np.random.default_rng(seed)
+    dim = len(center)
+    block = max(1, min(BLOCK, chains * (warmup + draws)))
+    total = PILOT + chains * (warmup + draws)
+    bar = tqdm(
+        total=total,
+        desc=f"posterior ({chains} chains, independence sampler)",
+        unit="point",
+        disable=not progress,
+        file=sys.stderr,
+        leave=False,
+    )
+    with bar:
+        t0 = time.perf_counter()
+        pilot = _StudentT(center, PROPOSAL_INFLATION**2 * np.asarray(cov))
+        Z0 = pilot.sample(rng, PILOT)
+        lp0 = _evaluate(log_density, Z0, block, bar)
+        w0 = _normalized(lp0 - pilot.log_density(Z0))
+        mean = w0 @ Z0
+        dev = Z0 - mean
+        moments = (w0[:, None] * dev).T @ dev
+        if not np.all(np.isfinite(moments)) or np.any(np.linalg.eigvalsh(moments) <= 0):
+            moments = np.asarray(cov)
+        proposal = _StudentT(mean, PROPOSAL_INFLATION**2 * (moments + 1e-12 * np.eye(dim)))
+        starts = Z0[rng.choice(PILOT, size=chains, p=w0)]
+        t_pilot = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        Z = proposal.sample(rng, chains * (warmup + draws))
+        lp = _evaluate(log_density, Z, block, bar)
+        log_w = lp - proposal.log_density(Z)
+    khat = float(pareto_khat(jnp.asarray(np.exp(log_w - np.max(log_w))), tail="upper"))
+    Z, lp, log_w = (a.reshape(chains, warmup + draws, *a.shape[1:]) for a in (Z, lp, log_w))
+    start_lp = np.asarray(log_density(jnp.asarray(starts)))
+    state = (starts, start_lp, start_lp - proposal.log_density(starts))
+    positions = np.empty((chains, warmup + draws, dim))
+    lps = np.empty((chains, warmup + draws))
+    accept = np.empty((chains, warmup + draws))
+    z, l_cur, w_cur = (np.array(a) for a in state)
+    for i in range(warmup + draws):
+        ratio = np.exp(np.minimum(log_w[:, i] - w_cur, 0.0))
+        take = rng.uniform(size=chains) < ratio
+        z = np.where(take[:, None], Z[:, i], z)
+        l_cur = np.where(take, lp[:, i], l_cur)
+        w_cur = np.where(take, log_w[:, i], w_cur)
+        positions[:, i], lps[:, i], accept[:, i] = z, l_cur, ratio
+    t_chains = time.perf_counter() - t0
+    keep = slice(warmup, None)
+    evaluations = total + chains
+    return positions[:, keep], lps[:, keep], accept[:, keep], khat, evaluations, t_pilot, t_chains
+
+
+def _normalized(log_w):
+    w = np.exp(log_w - np.max(log_w))
+    return w / np.sum(w)
 
 
 def _at_tolerance(objective: Objective, rtol: float | None) -> Objective:
@@ -446,28 +628,6 @@ def _at_tolerance(objective: Objective, rtol: float | None) -> Objective:
         failure_residual=objective.failure_residual,
         method=objective.method,
     )
-
-
-def _program_oracle(program: ResidualProgram, p: int):
-    """``U (..., p) -> (r, J)`` by the compiled program, in batches of its size."""
-
-    def oracle(U):
-        U = np.asarray(U, dtype=float)
-        lead = U.shape[:-1]
-        flat = U.reshape(-1, p)
-        size = program.starts
-        pad = (-len(flat)) % size
-        padded = np.concatenate([flat, np.repeat(flat[:1], pad, axis=0)]) if pad else flat
-        rs, js = [], []
-        for i in range(0, len(padded), size):
-            r, jac, _ = program(padded[i : i + size])
-            rs.append(r)
-            js.append(jac)
-        r = np.concatenate(rs)[: len(flat)]
-        jac = np.concatenate(js)[: len(flat)]
-        return r.reshape(*lead, r.shape[-1]), jac.reshape(*lead, *jac.shape[-2:])
-
-    return oracle
 
 
 def sample_posterior(
@@ -490,8 +650,9 @@ def sample_posterior(
     progress: bool = True,
     method: str | None = None,
     rtol: float | None = SAMPLING_RTOL,
+    sampler: str = "auto",
 ) -> PosteriorResult:
-    """Sample the posterior of ``params`` given the observations, by NUTS.
+    """Sample the posterior of ``params`` given the observations.
 
     **Arguments:**
     - `scene`, `observations`, `params`, `initial`, `starts`, `method`: as for `fit`, which
@@ -505,6 +666,9 @@ def sample_posterior(
     - `jitter`: the chains start this many standard errors (least squares) from the optimum.
     - `target_accept`: the step-size adaptation's target acceptance rate.
     - `progress`: progress bars on stderr.
+    - `sampler`: ``"auto"`` (default): the independence sampler, or HMC where its proposal
+      misses part of the posterior (Pareto k > 0.7); ``"independence"``; ``"hmc"``
+      (see :data:`SAMPLERS` and the module docstring).
     - `rtol`: solver tolerance of the sampler's evaluations (float64; atol ``rtol / 100``),
       where the scene leaves its own unset; None: the scene's (the fit's) tolerance.
 
@@ -514,6 +678,8 @@ def sample_posterior(
     """
     t_start = time.perf_counter()
     names = check_names(params)
+    if sampler not in SAMPLERS:
+        raise FitError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
     if likelihood not in LIKELIHOODS:
         raise FitError(f"likelihood must be one of {', '.join(LIKELIHOODS)}, got {likelihood!r}")
     if not nu > 0:
@@ -542,9 +708,7 @@ def sample_posterior(
             raise FitError(
                 f"the least-squares {n} = {v:.4g} lies outside its prior {prior_map[n].describe()}"
             )
-    # Thousands of calls: the program that runs fastest, not the one that compiles fastest.
-    program = ResidualProgram(_at_tolerance(objective, rtol), chains, program="throughput")
-    t_compile = program.compile(status=progress)
+    sampled = _at_tolerance(objective, rtol)
     dpdu = dphys_du(names, theta)
     cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
     groups, noise = _noise_groups(objective)
@@ -554,9 +718,8 @@ def sample_posterior(
         for j in range(len(noise))
     ]
     result = _sample(
-        _program_oracle(program, len(names)),
+        _model_residuals(sampled, names),
         names,
-        objective.n_data,
         to_unbounded(names, theta),
         cov_u,
         prior_map,
@@ -572,17 +735,33 @@ def sample_posterior(
         jitter=jitter,
         target_accept=target_accept,
         progress=progress,
+        sampler=sampler,
+        batch_log_density=_batch_log_density(
+            sampled, names, prior_map, groups, len(noise), likelihood, nu
+        ),
     )
     result.fit = fit_result
-    result.program = program
+    result.program = _model_values(sampled, names)
     result.noise_groups = groups
     result.timings = {
         "fit": t_fit,
-        "compile": t_compile,
         **result.timings,
         "total": time.perf_counter() - t_start,
     }
     return result
+
+
+def _model_values(objective: Objective, names):
+    """``U (n, p) -> model values (n, n_data)``: cor_n continued below zero where captured,
+    as the residuals see it (one compiled program, draws as a batch)."""
+    zero, one = jnp.zeros_like(objective._value), jnp.ones_like(objective._scale)
+
+    def values(u):
+        theta = to_physical(names, u)
+        result = objective._simulate_impl(theta)
+        return objective.residuals_from_result(result, objective.hertz_time(theta), zero, one)
+
+    return jax.jit(jax.vmap(values))
 
 
 def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
@@ -595,8 +774,7 @@ def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
     noise = result.noise_draws.reshape(flat.shape[0], -1)
     pick = np.linspace(0, len(flat) - 1, min(n, len(flat))).astype(int)
     U = np.stack([to_unbounded(names, flat[i]) for i in pick])
-    oracle = _program_oracle(_ValueProgram(result.program), p)
-    model, _ = oracle(U)
+    model = np.asarray(result.program(jnp.asarray(U)))
     objective = result.fit.objective
     groups = result.noise_groups
     factor = np.where(
@@ -608,13 +786,3 @@ def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
     else:
         e = rng.standard_t(result.nu, model.shape)
     return model, model + e * factor * objective.scale
-
-
-class _ValueProgram:
-    """The residual program asked for model values (observed 0, scale 1)."""
-
-    def __init__(self, program):
-        self.program, self.starts = program, program.starts
-
-    def __call__(self, U):
-        return self.program(U, value=0.0, scale=1.0)

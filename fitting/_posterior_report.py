@@ -35,6 +35,8 @@ def posterior_fields(result: PosteriorResult) -> dict:
         "priors": {n: p.describe() for n, p in result.priors.items()},
         "chains": int(result.chains),
         "draws_per_chain": int(result.draws.shape[1]),
+        "sampler": result.sampler,
+        "pareto_k": _num(result.khat),
         "divergences": int(result.divergences),
         "acceptance": _num(result.acceptance),
         "step_size": [_num(s) for s in np.atleast_1d(result.step_size)],
@@ -43,6 +45,9 @@ def posterior_fields(result: PosteriorResult) -> dict:
         "noise": {n: _stats(result.summary[n]) for n in result.noise},
         "timings": {k: round(float(v), 4) for k, v in result.timings.items()},
     }
+
+
+_SAMPLER_NAMES = {"independence": "independence Metropolis", "hmc": "HMC"}
 
 
 def _stats(s: dict) -> dict:
@@ -63,7 +68,8 @@ def posterior_summary(result: PosteriorResult) -> str:
     """Readable lines: status, each parameter's posterior next to its least-squares value."""
     lines = [
         f"posterior ({result.likelihood}; {result.chains} chains x {result.draws.shape[1]} "
-        f"draws, NUTS): " + ("converged" if result.converged else "NOT CONVERGED"),
+        f"draws, {_SAMPLER_NAMES[result.sampler]}): "
+        + ("converged" if result.converged else "NOT CONVERGED"),
     ]
     for problem in result.problems:
         lines.append(f"  because {problem}")
@@ -80,9 +86,12 @@ def posterior_summary(result: PosteriorResult) -> str:
         lines.append("correlation of the draws:")
         for n, row in zip(result.params, result.correlation, strict=True):
             lines.append(f"  {n.ljust(width)} " + " ".join(f"{c:+.3f}" for c in row))
+    if result.sampler == "independence":
+        how = f"Pareto k {result.khat:.2f}; {result.evaluations} log-density evaluations"
+    else:
+        how = f"divergences {result.divergences}; {result.evaluations} gradient evaluations"
     lines.append(
-        f"divergences {result.divergences}; mean acceptance {result.acceptance:.2f}; "
-        f"{result.evaluations} log-density evaluations (all chains each); time "
+        f"{how}; mean acceptance {result.acceptance:.2f}; time "
         + ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items())
     )
     return "\n".join(lines)

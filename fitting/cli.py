@@ -85,10 +85,10 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the multi-start spread")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     g = p.add_argument_group(
-        "posterior (NUTS; docs/posterior.md)",
-        "--posterior samples the Bayesian posterior after the fit, from chains started at the "
-        "least-squares optimum. Exit 3 when a split R-hat exceeds 1.01 or a transition "
-        "diverged.",
+        "posterior (docs/posterior.md)",
+        "--posterior samples the Bayesian posterior after the fit, from a proposal placed by "
+        "the least-squares optimum. Exit 3 when a split R-hat exceeds 1.01, a transition "
+        "diverged or the proposal misses part of the posterior (Pareto k > 0.7).",
     )
     g.add_argument("--posterior", action="store_true", help="sample the posterior")
     g.add_argument(
@@ -104,6 +104,13 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--chains", type=int, default=4, help="number of chains (default 4)")
     g.add_argument("--samples", type=int, default=1000, help="draws per chain (default 1000)")
     g.add_argument("--warmup", type=int, default=300, help="warm-up steps per chain (default 300)")
+    g.add_argument(
+        "--sampler",
+        choices=("auto", "independence", "hmc"),
+        default="auto",
+        help="auto (default): independence Metropolis on a proposal fitted to the posterior, "
+        "HMC where that proposal misses part of it; or force either",
+    )
     g.add_argument("--draws", metavar="FILE.nc", help="write the draws (ArviZ InferenceData)")
     g.add_argument("--corner", metavar="FILE.png", help="corner plot of the draws")
     g.add_argument(
@@ -360,6 +367,7 @@ def cmd_fit(args) -> int:
             warmup=args.warmup,
             seed=args.seed,
             fit_result=result,
+            sampler=args.sampler,
             progress=progress,
         )
         print(posterior_summary(post))
