@@ -15,8 +15,16 @@ class Status:
     MAX_STEPS = 2  # step limit reached (often: a stiff scene on an explicit solver)
     NONFINITE = 3  # the state became NaN or infinite
     SOLVER_ERROR = 4  # any other solver failure
+    INVALID_INPUT = 5  # a traced input outside its range (docs/input_ranges.md): not solved
 
-    NAMES = {0: "rebound", 1: "captured", 2: "max_steps", 3: "nonfinite", 4: "solver_error"}
+    NAMES = {
+        0: "rebound",
+        1: "captured",
+        2: "max_steps",
+        3: "nonfinite",
+        4: "solver_error",
+        5: "invalid_input",
+    }
 
     @staticmethod
     def csv_name(code) -> str:
@@ -71,7 +79,8 @@ class ImpactResult(eqx.Module):
 
     @property
     def failure_reasons(self) -> np.ndarray:
-        """Why each impact failed (``max_steps``, ``nonfinite``, ``solver_error``), else ``""``."""
+        """Why each impact failed (``max_steps``, ``nonfinite``, ``solver_error``,
+        ``invalid_input``), else ``""``."""
         codes = np.asarray(self.status)
         name = lambda c: Status.NAMES[int(c)] if c >= Status.MAX_STEPS else ""  # noqa: E731
         return np.vectorize(name, otypes=[object])(codes)

@@ -602,9 +602,7 @@ def _differentiable(solve, solve_with_tangents):
             for i in range(len(xs))
         ]
         basis = jax.tree_util.tree_map(lambda *b: jnp.stack(b), *basis)
-        out, columns = jax.vmap(
-            lambda t: jax.jvp(of_moved, (xs,), (t,)), out_axes=(None, 0)
-        )(basis)
+        out, columns = jax.vmap(lambda t: jax.jvp(of_moved, (xs,), (t,)), out_axes=(None, 0))(basis)
         dxs = [dleaves[i] for i in moved]
 
         def combine(y, col):
@@ -770,14 +768,17 @@ def _simulate(
     program="throughput",
 ):
     """``simulate`` with the batch path's private settings: ``chunk``, lanes per device in one
-    vmapped solve (default ``_default_chunk``; 0: the whole batch in one, as before issue 12);
-    ``loop``: the step loop, ``"lean"`` (``_fast_loop``, chunked: forward only, so used only
-    where every input is concrete), ``"pool"`` (the lean loop with lanes refilled as impacts
-    finish; float32 only, else ``"lean"``) or ``"diffrax"`` (``diffeqsolve``); default (None):
-    ``"pool"`` where every input is concrete, so that ``jax.grad``, ``jax.jacfwd`` and traced
-    inputs go through ``diffeqsolve``. The lean loop gives diffeqsolve's bits and runs 1.2-1.5x
-    as many impacts per second; the pool 9-12x on slow float32 impacts near capture, not
-    bit for bit (tests/test_throughput_paths.py; BENCHMARKS.md, "Throughput (issue 12)")."""
+    vmapped solve (default ``_default_chunk``; 0: the whole batch in one); ``loop``: the step
+    loop, ``"lean"`` (``_fast_loop``, chunked), ``"pool"`` (the lean loop with lanes refilled
+    as impacts finish; float32 only, else ``"lean"``) or ``"diffrax"`` (``diffeqsolve``,
+    differentiated with ``adjoint``); default (None): ``"pool"``. Values and derivatives come
+    from the chosen loop (``_simulate_flat``). The lean loop gives diffeqsolve's bits; the pool
+    runs 9-12x faster on slow float32 impacts near capture, not bit for bit
+    (tests/test_throughput_paths.py).
+
+    Traced inputs cannot raise: a lane with an input outside its range (``_ranges.RANGES``)
+    is solved with the scene's nominal inputs in its place and reported with status
+    ``invalid_input`` and NaN outputs."""
     speed = scene.impact.speed if speed is None else speed
     angle_deg = scene.impact.angle_deg if angle_deg is None else angle_deg
     omega0 = scene.impact.omega0 if omega0 is None else omega0
@@ -792,6 +793,11 @@ def _simulate(
     flat = lambda x: jnp.broadcast_to(x, shape).reshape(size)  # noqa: E731
     params = {k: flat(v) for k, v in params.items()}
     speed, angle_deg, omega0 = flat(speed), flat(angle_deg), flat(omega0)
+    valid = None
+    if not all(map(_is_concrete, (speed, angle_deg, omega0, *params.values()))):
+        (params, speed, angle_deg, omega0), valid = _replace_invalid(
+            (params, speed, angle_deg, omega0)
+        )
 
     terms = required_terms(scene, params, angle_deg, omega0)
     cfg = integration_settings(scene, params, speed, angle_deg, dtype, method)
@@ -808,7 +814,66 @@ def _simulate(
     inputs, shards = _shard_over_devices(inputs, size, group)
     chunk = _default_chunk(shards, dtype) if chunk is None else chunk
     result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)
-    return jax.tree_util.tree_map(lambda x: x[:size].reshape(shape), result)
+    result = jax.tree_util.tree_map(lambda x: x[:size], result)
+    if valid is not None:
+        result = _mark_invalid(result, valid)
+    return jax.tree_util.tree_map(lambda x: x.reshape(shape), result)
+
+
+# Inputs that stand in for an invalid traced lane: a plain, quick Table 1 impact.
+_NOMINAL = {
+    "speed": 1.0,
+    "angle_deg": 0.0,
+    "omega0": 0.0,
+    "radius": 21.7e-6,
+    "density": 2500.0,
+    "K": 5.3e10,
+    "f0": 300.0,
+    "C_A": 0.75,
+    "C_H": 0.25,
+    "friction": 0.3,
+    "lambda": 0.0,
+    "G_star": 2e10,
+}
+
+
+def _replace_invalid(inputs):
+    """``(inputs, valid)``: each lane valid where every input is in its range
+    (``_ranges.RANGES``); an invalid lane's inputs replaced by :data:`_NOMINAL`."""
+    from ._ranges import RANGES
+
+    params, speed, angle_deg, omega0 = inputs
+    named = {**params, "speed": speed, "angle_deg": angle_deg, "omega0": omega0}
+    valid = jnp.ones(speed.shape, bool)
+    for name, x in named.items():
+        rng = RANGES[name]
+        above = x >= rng.lo if rng.lo_closed else x > rng.lo
+        below = x <= rng.hi if rng.hi_closed else x < rng.hi
+        valid = valid & jnp.isfinite(x) & above & below
+    pick = lambda name, x: jnp.where(valid, x, jnp.asarray(_NOMINAL[name], x.dtype))  # noqa: E731
+    params = {k: pick(k, v) for k, v in params.items()}
+    return (
+        params,
+        pick("speed", speed),
+        pick("angle_deg", angle_deg),
+        pick("omega0", omega0),
+    ), valid
+
+
+def _mark_invalid(result: ImpactResult, valid) -> ImpactResult:
+    """Status ``invalid_input`` and NaN outputs (0 steps) on the invalid lanes."""
+
+    def mark(x):
+        if jnp.issubdtype(x.dtype, jnp.floating):
+            return jnp.where(valid, x, jnp.nan)
+        return x
+
+    marked = jax.tree_util.tree_map(mark, result)
+    return dataclasses.replace(
+        marked,
+        status=jnp.where(valid, result.status, Status.INVALID_INPUT).astype(result.status.dtype),
+        steps=jnp.where(valid, result.steps, 0).astype(result.steps.dtype),
+    )
 
 
 def _shard_over_devices(inputs, size, group=1):

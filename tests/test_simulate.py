@@ -350,3 +350,26 @@ def test_gradient_finite_through_a_capture(table1):
 
     g = jax.grad(loss)(325.0)
     assert np.isfinite(float(g)) and float(g) != 0.0
+
+
+def test_invalid_traced_inputs_get_their_own_status_and_nan():
+    """Under jit an input outside its range cannot raise: the impact is reported with status
+    invalid_input and NaN outputs, and the valid impacts of the batch are unaffected."""
+    scene = ji.table1_scene()
+    speed = np.array([1.0, -1.0, 2.0, 1.5, 1.2])
+    angle = np.array([10.0, 0.0, 95.0, 30.0, 0.0])
+    f0 = np.array([300.0, 300.0, 300.0, 300.0, -5.0])
+
+    @jax.jit
+    def run(speed, angle, f0):
+        return ji.simulate(scene.replace(contact={"f0": f0}), speed, angle, 0.0)
+
+    r = run(speed, angle, f0)
+    status = np.asarray(r.status)
+    bad = np.array([False, True, True, False, True])
+    assert np.all(status[bad] == ji.Status.INVALID_INPUT)
+    assert list(r.failure_reasons[bad]) == ["invalid_input"] * 3
+    assert np.all(np.isnan(np.asarray(r.cor_n)[bad]))
+    assert np.all(status[~bad] == ji.Status.REBOUND)
+    good = ji.simulate(scene.replace(contact={"f0": 300.0}), speed[~bad], angle[~bad], 0.0)
+    np.testing.assert_allclose(np.asarray(r.cor_n)[~bad], np.asarray(good.cor_n), rtol=1e-12)
