@@ -118,8 +118,9 @@ class ResidualProgram:
         starts = f", {self.starts} starts batched" if self.starts > 1 else ""
         mode = "forward" if self.jacobian == "fwd" else "reverse"
         return (
-            f"residuals and Jacobian for {n_imp} impacts ({n_obs} observations) x "
-            f"{len(self.names)} parameters ({mode} mode{starts})"
+            f"residuals and Jacobian for {_count(n_imp, 'impact')} "
+            f"({_count(n_obs, 'observation')}) x {_count(len(self.names), 'parameter')} "
+            f"({mode} mode{starts})"
         )
 
     def compile(self, *, status: bool = False) -> float:
@@ -188,3 +189,8 @@ class ResidualProgram:
         )
         r, jac, status = self._compiled(U, value, scale)
         return np.asarray(r), np.asarray(jac), np.asarray(status)
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 impact``, ``25 impacts``."""
+    return f"{n} {noun}" + ("" if n == 1 else "s")
