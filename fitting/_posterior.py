@@ -131,10 +131,12 @@ class PosteriorResult:
 # -- the log density ------------------------------------------------------------------------
 
 
-def _model_residuals(objective: Objective, names):
+def _model_residuals(objective: Objective, names, value=None, scale=None):
     """``u -> r``: the fit's weighted residuals as a JAX function (values and derivatives from
-    the simulator's step loop; no host round trip)."""
-    value, scale = objective._value, objective._scale
+    the simulator's step loop; no host round trip); ``value``, ``scale``: observed values and
+    scales in place of the objective's."""
+    value = objective._value if value is None else value
+    scale = objective._scale if scale is None else scale
 
     def residuals(u):
         theta = to_physical(names, u)
@@ -234,14 +236,7 @@ def _run_hmc(log_density, z0, metric, *, warmup, draws, seed, target_accept, pro
         return step(key, states, jnp.asarray(step_size), jnp.asarray(imm), jnp.asarray(n))
 
     def bar(total, what):
-        return tqdm(
-            total=total,
-            desc=f"posterior {what} ({chains} chains)",
-            unit="step",
-            disable=not progress,
-            file=sys.stderr,
-            leave=False,
-        )
+        return _progress_bar(total, f"posterior {what} ({chains} chains)", "step", progress)
 
     t0 = time.perf_counter()
     states = jax.jit(jax.vmap(lambda z: blackjax.hmc.init(z, log_density)))(jnp.asarray(z0))
@@ -559,15 +554,8 @@ def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, 
     dim = len(center)
     block = max(1, min(BLOCK, chains * (warmup + draws)))
     total = PILOT + chains * (warmup + draws)
-    bar = tqdm(
-        total=total,
-        desc=f"posterior ({chains} chains, independence sampler)",
-        unit="point",
-        disable=not progress,
-        file=sys.stderr,
-        leave=False,
-    )
-    with bar:
+    desc = f"posterior ({chains} chains, independence sampler)"
+    with _progress_bar(total, desc, "point", progress) as bar:
         t0 = time.perf_counter()
         pilot = _StudentT(center, PROPOSAL_INFLATION**2 * np.asarray(cov))
         Z0 = pilot.sample(rng, PILOT)
@@ -579,7 +567,8 @@ def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, 
         if not np.all(np.isfinite(moments)) or np.any(np.linalg.eigvalsh(moments) <= 0):
             moments = np.asarray(cov)
         proposal = _StudentT(mean, PROPOSAL_INFLATION**2 * (moments + 1e-12 * np.eye(dim)))
-        starts = Z0[rng.choice(PILOT, size=chains, p=w0)]
+        picked = rng.choice(PILOT, size=chains, p=w0)
+        starts, start_lp = Z0[picked], lp0[picked]
         t_pilot = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -588,7 +577,6 @@ def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, 
         log_w = lp - proposal.log_density(Z)
     khat = float(pareto_khat(jnp.asarray(np.exp(log_w - np.max(log_w))), tail="upper"))
     Z, lp, log_w = (a.reshape(chains, warmup + draws, *a.shape[1:]) for a in (Z, lp, log_w))
-    start_lp = np.asarray(log_density(jnp.asarray(starts)))
     state = (starts, start_lp, start_lp - proposal.log_density(starts))
     positions = np.empty((chains, warmup + draws, dim))
     lps = np.empty((chains, warmup + draws))
@@ -603,8 +591,15 @@ def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, 
         positions[:, i], lps[:, i], accept[:, i] = z, l_cur, ratio
     t_chains = time.perf_counter() - t0
     keep = slice(warmup, None)
-    evaluations = total + chains
+    evaluations = total
     return positions[:, keep], lps[:, keep], accept[:, keep], khat, evaluations, t_pilot, t_chains
+
+
+def _progress_bar(total, desc, unit, progress):
+    """A progress bar on stderr (none unless ``progress``)."""
+    return tqdm(
+        total=total, desc=desc, unit=unit, disable=not progress, file=sys.stderr, leave=False
+    )
 
 
 def _normalized(log_w):
@@ -755,13 +750,7 @@ def _model_values(objective: Objective, names):
     """``U (n, p) -> model values (n, n_data)``: cor_n continued below zero where captured,
     as the residuals see it (one compiled program, draws as a batch)."""
     zero, one = jnp.zeros_like(objective._value), jnp.ones_like(objective._scale)
-
-    def values(u):
-        theta = to_physical(names, u)
-        result = objective._simulate_impl(theta)
-        return objective.residuals_from_result(result, objective.hertz_time(theta), zero, one)
-
-    return jax.jit(jax.vmap(values))
+    return jax.jit(jax.vmap(_model_residuals(objective, names, zero, one)))
 
 
 def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):

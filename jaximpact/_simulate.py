@@ -502,8 +502,6 @@ def _outputs(terms: dyn.Terms, prob: _Problem, speed, omega0, sol):
 
 # ``simulate(program=...)``: what the program is made for -> the form of Tsit5's stage sums.
 PROGRAMS = {"throughput": "per_state", "compact": "loop"}
-# The program of every tangent solve (see `_simulate_flat`).
-TANGENT_PROGRAM = "compact"
 
 # Lanes per device that one chunk of a large batch integrates at a time, on a CPU, in float64
 # (float32: twice as many, the same bytes); issue 12, measured in BENCHMARKS.md, "Throughput
@@ -551,7 +549,7 @@ def _simulate_flat(
     # Derivatives take Tsit5's stages in a loop (the compact program) whatever the program of
     # the values: the tangent program of the unrolled stages compiles 4x slower (measured:
     # 64 against 16 s for output_jacobian) and runs no faster on a fit's batch.
-    compact = dataclasses.replace(cfg, stages=PROGRAMS[TANGENT_PROGRAM])
+    compact = dataclasses.replace(cfg, stages=PROGRAMS["compact"])
     solve_with_tangents = functools.partial(_solve_batch, terms, compact, chunk, shards, loop, None)
     return _differentiable(solve, solve_with_tangents)(inputs)
 
