@@ -1,4 +1,4 @@
-"""The lean step loop: ``simulate``'s default for concrete inputs (issue 12).
+"""The lean step loop: ``simulate``'s one engine for values and derivatives.
 
 ``diffrax.diffeqsolve`` runs its step loop with machinery this simulator never uses in a batch:
 save buffers, dense-output buffers, a checkpointed while loop, a progress meter, the attempted
@@ -8,20 +8,19 @@ lane-step against ~40 ns for the vector field itself, BENCHMARKS.md "Throughput"
 
 :func:`diffeqsolve_lean` is the same integration with only what the hot case needs: an explicit
 adaptive Runge-Kutta solver (``LaneTsit5``), diffrax's step-size controller, one scalar event
-with a root finder (separation or capture), ``SaveAt(t1=True)``. It calls the same pieces in
-the same order as ``diffrax``'s loop (``solver.init``, ``controller.init``, ``solver.step``,
-``controller.adapt_step_size``, the event's sign test, ``optx.root_find`` on the solver's
-dense output of the last step), so a lane gives the same arithmetic; what it leaves out is
-only bookkeeping. Instead of carrying the dense output, it keeps the state and first stage
-before each step and, after the loop, repeats the step that triggered the event (the same
-bits) to build its interpolation.
+located by :func:`jaximpact._event.locate` (separation or capture), ``SaveAt(t1=True)``. It
+calls the same pieces in the same order as ``diffrax``'s loop (``solver.init``,
+``controller.init``, ``solver.step``, ``controller.adapt_step_size``, the event's sign test),
+so a lane's steps are diffrax's arithmetic; what it leaves out is only bookkeeping. Instead of
+carrying the dense output, it keeps the state and first stage before each step and, after the
+loop, repeats the step that triggered the event (the same bits) to build its interpolation.
 
-It is forward-only (a plain ``lax.while_loop``): ``_simulate`` uses it only for concrete inputs
-(and the sweep, which never differentiates), so ``jax.grad``/``jax.jacfwd`` and traced inputs
-go through ``diffeqsolve``. Its outputs, step counts and failure statuses are bitwise
-``diffeqsolve``'s (tests/test_throughput_paths.py, float64 and float32, both programs); it runs
-1.2-1.5x as many impacts per second (BENCHMARKS.md, "Throughput (issue 12)"). float32 batches
-run through :func:`solve_pool`, which refills finished lanes.
+It is a plain ``lax.while_loop``; derivatives are forward tangents of the same loop, wrapped by
+``_simulate._differentiable`` (a ``custom_jvp``; ``jax.grad`` transposes it). Outputs, step
+counts and failure statuses equal ``diffeqsolve``'s bitwise in float64; in float32 the event
+locator (Newton in a bracket) and diffrax's bisection stop at different points inside the
+event tolerance (tests/test_throughput_paths.py). float32 batches run through
+:func:`solve_pool`, which refills finished lanes.
 """
 
 import diffrax

@@ -106,16 +106,33 @@ def test_default_loop_is_bitwise_diffeqsolve(table1):
 
 
 @pytest.mark.slow  # compiles programs of its own: CI's second step
-@pytest.mark.parametrize("x64, program", [(True, "compact"), (False, "throughput")])
-def test_lean_loop_is_bitwise_diffeqsolve_other_programs(table1, x64, program):
-    """The same for the fit's compact program and in float32 (events by bisection)."""
+def test_lean_loop_is_bitwise_diffeqsolve_compact_program(table1):
+    """The same for the fit's compact program."""
     speed, angle, omega0 = impacts(9, seed=7)
-    with jax.enable_x64(x64):
-        kw = dict(chunk=0, program=program)
+    kw = dict(chunk=0, program="compact")
+    ref = sim._simulate(table1, speed, angle, omega0, loop="diffrax", **kw)
+    lean = sim._simulate(table1, speed, angle, omega0, loop="lean", **kw)
+    assert np.asarray(ref.status)[1] == ji.Status.CAPTURED
+    _assert_same(lean, ref)
+
+
+@pytest.mark.slow  # compiles programs of its own: CI's second step
+def test_lean_loop_float32_agrees_with_diffeqsolve_to_the_event_tolerance(table1):
+    """float32: the lean loop's event locator (Newton in a bracket) and diffeqsolve's bisection
+    stop at different points inside the event tolerance (1000 ulp of time, 1.2e-4), so the
+    outputs agree to that tolerance, not bitwise; the steps before the event are the same."""
+    speed, angle, omega0 = impacts(9, seed=7)
+    with jax.enable_x64(False):
+        kw = dict(chunk=0, program="throughput")
         ref = sim._simulate(table1, speed, angle, omega0, loop="diffrax", **kw)
         lean = sim._simulate(table1, speed, angle, omega0, loop="lean", **kw)
     assert np.asarray(ref.status)[1] == ji.Status.CAPTURED
-    _assert_same(lean, ref)
+    for k in ("status", "steps"):
+        np.testing.assert_array_equal(np.asarray(getattr(lean, k)), np.asarray(getattr(ref, k)))
+    for k in ("cor_n", "vt_out", "omega_out", "contact_time", "energy_out"):
+        a, b = np.asarray(getattr(lean, k), float), np.asarray(getattr(ref, k), float)
+        scale = np.max(np.abs(b))
+        np.testing.assert_allclose(a, b, rtol=2e-4, atol=2e-4 * scale, err_msg=k)
 
 
 def test_lean_loop_reports_the_step_limit_as_diffeqsolve(table1):
@@ -132,8 +149,10 @@ def test_lean_loop_reports_the_step_limit_as_diffeqsolve(table1):
 
 
 @pytest.mark.slow  # compiles programs of its own: CI's second step
-def test_lean_loop_falls_back_under_differentiation(table1):
-    """Traced inputs (here ``jax.jacfwd``) go through ``diffeqsolve``: derivatives exact."""
+def test_lean_loop_derivatives_match_diffeqsolve(table1):
+    """Traced inputs (here ``jax.jacfwd``) run the lean loop with tangents (the locator's
+    implicit-function derivative at the event); diffeqsolve differentiates through its own
+    root find. The two are derivatives of the same discrete solution: equal to 1e-12."""
     speed, angle, omega0 = impacts(3, seed=6)
 
     def cor(c_h, loop):
@@ -142,10 +161,10 @@ def test_lean_loop_falls_back_under_differentiation(table1):
         return r.cor_n
 
     c_h = jax.numpy.asarray(table1.contact.C_H)
-    np.testing.assert_array_equal(
-        np.asarray(jax.jacfwd(lambda c: cor(c, "lean"))(c_h)),
-        np.asarray(jax.jacfwd(lambda c: cor(c, "diffrax"))(c_h)),
-    )
+    lean = np.asarray(jax.jacfwd(lambda c: cor(c, "lean"))(c_h))
+    ref = np.asarray(jax.jacfwd(lambda c: cor(c, "diffrax"))(c_h))
+    assert np.all(lean[[0, 2]] != 0)
+    np.testing.assert_allclose(lean, ref, rtol=1e-12, atol=1e-14)
 
 
 def slow_impacts(n, seed=2026):
