@@ -1,0 +1,414 @@
+"""The capture speed: the impact speed below which the sphere sticks, for each incidence angle
+and spin, found on the simulator and differentiated by the implicit-function theorem.
+
+The capture margin
+------------------
+``g(v) = (vn_out / v)^2``, the normal kinetic energy after a rebound over the impact's kinetic
+energy. It is smooth in ``v`` and every parameter on the rebound side, and falls to 0 at the
+capture speed ``v_c``, where the sphere leaves the surface with no normal speed left (the
+normal energy at separation goes to zero linearly in ``v - v_c``, so ``vn_out`` goes like
+``sqrt(v - v_c)`` but ``g`` does not). Below ``v_c`` the simulator reports a capture, for
+which ``g`` has no value: the root is found from the rebound side, with the captured speeds as
+the other end of a bracket.
+
+Search
+------
+1. Scan: ``SCAN_POINTS`` speeds, geometric, from ``1e-3`` to ``1e3`` times the adhesion speed
+   ``v_a = sqrt(2 |V_min| / m)`` (``V_min = -(8/15) pi f0 sqrt(r) (2 pi f0 / K)^1.5``, the
+   depth of the adhesive well of the normal potential), cut at the speed range's top
+   (1000 m/s).
+2. Rule: the capture speed is the upper end of the highest captured band of the scan: every
+   scanned speed above it rebounds. One captured band starting at the lowest scanned speed is
+   status ``threshold``; any other pattern (rebounds below a captured band) is ``multiple``.
+3. Root: secant steps on ``g`` through the two lowest rebound speeds of the bracket, kept inside
+   it; a step that lands on a capture moves the captured end and the next step is taken just
+   above it; bisection where the secant leaves the bracket. Converged when the bracket or the
+   secant step is below ``rtol`` of the speed.
+
+Derivatives (implicit-function theorem): ``dv_c = -(dg/dp . dp) / (dg/dv)``, with the partial
+derivatives of the simulator (forward mode) taken at ``v_c (1 + eps)`` and ``v_c (1 + 2 eps)``
+and extrapolated to ``v_c`` (Richardson: the partials at ``v_c`` itself would read a capture).
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._scene import SceneError
+from .._simulate import scene_parameters
+
+__all__ = ["CaptureSpeed", "CaptureStatus", "adhesion_speed", "capture_speed", "scene_with"]
+
+SCAN_POINTS = 19  # three per decade over six decades of v / v_a
+SCAN_RANGE = (1e-3, 1e3)  # in units of the adhesion speed v_a
+SPEED_MAX = 1000.0  # m/s, the top of the speed range (docs/input_ranges.md)
+RTOL = 1e-9  # relative tolerance of the root
+MAX_ITERATIONS = 40
+EPS = 1e-4  # relative offset above v_c of the derivative points (Richardson to v_c)
+
+SECTION_OF = {
+    "radius": ("particle", "radius"),
+    "density": ("particle", "density"),
+    "K": ("contact", "K"),
+    "f0": ("contact", "f0"),
+    "C_A": ("contact", "C_A"),
+    "C_H": ("contact", "C_H"),
+    "friction": ("contact", "friction"),
+    "G_star": ("contact", "G_star"),
+    "lambda": ("model", "lambda_"),
+}
+
+
+class CaptureStatus:
+    """Status codes of :func:`capture_speed` (``CaptureSpeed.status``).
+
+    - ``THRESHOLD`` (0): captured below the speed, rebound above it, over the whole scan.
+    - ``NO_ADHESION`` (1): the scene has no adhesion (``f0 = 0`` or ``model.adhesion =
+      false``): nothing sticks, the speed is 0 (exactly, with zero derivatives).
+    - ``MULTIPLE`` (2): capture is not one threshold: some scanned speed below the returned
+      one rebounds. The speed is the upper end of the highest captured band (every faster
+      impact of the scan rebounds); the bands below it are not reported.
+    - ``NONE_IN_RANGE`` (3): every scanned speed rebounds: the capture speed, if any, lies
+      below the scan (``speed`` is then the lowest scanned speed, an upper bound).
+    - ``ALL_CAPTURED`` (4): the fastest scanned speed is captured (``speed`` is ``inf``).
+    - ``FAILED`` (5): an impact of the scan or the root find failed (``speed`` is NaN).
+    - ``NOT_CONVERGED`` (6): the root find used its iterations without reaching the tolerance
+      (``speed`` is the best estimate).
+    """
+
+    THRESHOLD = 0
+    NO_ADHESION = 1
+    MULTIPLE = 2
+    NONE_IN_RANGE = 3
+    ALL_CAPTURED = 4
+    FAILED = 5
+    NOT_CONVERGED = 6
+    NAMES = {
+        0: "threshold",
+        1: "no_adhesion",
+        2: "multiple",
+        3: "none_in_range",
+        4: "all_captured",
+        5: "failed",
+        6: "not_converged",
+    }
+
+
+class CaptureSpeed(eqx.Module):
+    """Result of :func:`capture_speed` (arrays of the broadcast shape of its inputs).
+
+    - `speed`: capture speed, m/s (see `status` for what it means where it is not one
+      threshold).
+    - `status`: :class:`CaptureStatus` codes (int).
+    - `bracket`: ``(lo, hi)``, m/s: the fastest speed found captured and the slowest found
+      rebounding (equal to ``speed`` where there is no bracket).
+    - `evaluations`: impacts simulated per value (scan and root find).
+    """
+
+    speed: jax.Array
+    status: jax.Array
+    bracket: tuple
+    evaluations: int = eqx.field(static=True, default=0)
+
+    @property
+    def status_names(self) -> np.ndarray:
+        codes = np.asarray(self.status)
+        return np.vectorize(lambda c: CaptureStatus.NAMES[int(c)], otypes=[object])(codes)
+
+
+def scene_with(scene, params: dict):
+    """``scene`` with its float parameters replaced by ``params`` (impacts-CSV names)."""
+    sections: dict = {}
+    for name, value in params.items():
+        section, field = SECTION_OF[name]
+        sections.setdefault(section, {})[field] = value
+    return scene.replace(**sections)
+
+
+def adhesion_speed(radius, density, K, f0):
+    """``v_a = sqrt(2 |V_min| / m)`` (m/s): the speed whose kinetic energy fills the adhesive
+    well of the normal potential ``V(n) = (2/5) K sqrt(r) n^2.5 - (4/3) pi f0 sqrt(r) n^1.5``
+    (minimum at ``n = 2 pi f0 / K``). 0 without adhesion."""
+    xp = jnp if any(isinstance(x, jax.Array) for x in (radius, density, K, f0)) else np
+    n_e = 2.0 * math.pi * f0 / K
+    depth = (8.0 / 15.0) * math.pi * f0 * xp.sqrt(radius) * n_e**1.5
+    mass = density * 4.0 / 3.0 * math.pi * radius**3
+    return xp.sqrt(2.0 * depth / mass)
+
+
+def _margin(scene, params, speed, angle_deg, omega0):
+    """``g = (vn_out / speed)^2`` and the simulator's status."""
+    from .._api import simulate
+
+    res = simulate(scene_with(scene, params), speed, angle_deg, omega0)
+    return (res.vn_out / speed) ** 2, res.status
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def capture_speed(
+    scene, angle_deg=0.0, omega0=0.0, *, rtol: float = RTOL, speed_range=None
+) -> CaptureSpeed:
+    """The impact speed below which the sphere is captured (sticks), per angle and spin.
+
+    **Arguments:**
+    - `scene`: a `Scene`; its float parameters may be arrays (one value per entry), broadcast
+      with `angle_deg` and `omega0`.
+    - `angle_deg`: incidence from the surface normal (degrees, in (-90, 90)).
+    - `omega0`: initial spin (rad/s, signed as in `simulate`).
+    - `rtol`: relative tolerance of the root (default 1e-9).
+    - `speed_range`: ``(lo, hi)`` in m/s to scan instead of ``1e-3 .. 1e3`` times the adhesion
+      speed (:func:`adhesion_speed`).
+
+    **Returns:** a :class:`CaptureSpeed`: `speed` (m/s) and `status` (:class:`CaptureStatus`;
+    check it: where capture is not one threshold the speed follows the documented rule).
+
+    Differentiable (``jax.grad``, ``jax.jacfwd``, ``jax.jvp``) with respect to every scene
+    parameter and `angle_deg`, `omega0`, by the implicit-function theorem on the capture margin
+    (module docstring). The search runs on concrete values: not under ``jax.jit`` or
+    ``jax.vmap`` (pass arrays instead: the values are batched).
+
+    **Raises:** `SceneError` (a `ValueError`) for inputs outside their ranges, or traced
+    primal values (under ``jit``/``vmap``).
+    """
+    params = scene_parameters(scene)
+    adhesive = bool(scene.model.adhesion)
+    if not 0 < rtol < 1e-2:
+        raise SceneError(f"rtol must be in (0, 0.01), got {rtol!r}")
+    if speed_range is not None:
+        lo, hi = (float(x) for x in speed_range)
+        if not 0 < lo < hi <= SPEED_MAX:
+            raise SceneError(f"speed_range must satisfy 0 < lo < hi <= {SPEED_MAX:g} m/s")
+        speed_range = (lo, hi)
+    names = tuple(params)
+    evaluations = []
+
+    def search(values, angle, omega):
+        leaves = [*values, angle, omega]
+        if not all(_is_concrete(x) for x in leaves):
+            raise SceneError(
+                "capture_speed needs concrete values: call it outside jax.jit and jax.vmap "
+                "(jax.grad, jax.jacfwd and jax.jvp work; pass arrays to batch)"
+            )
+        a, w = np.asarray(angle, dtype=float), np.asarray(omega, dtype=float)
+        if not np.all(np.isfinite(a) & (np.abs(a) < 90.0)):
+            raise SceneError("angle_deg must be finite and in (-90, 90) deg")
+        if not np.all(np.isfinite(w) & (np.abs(w) <= 1e9)):
+            raise SceneError("omega0 must be finite and in [-1e9, 1e9] rad/s")
+        out = _search(scene, names, values, a, w, adhesive, rtol, speed_range)
+        evaluations.append(out["evaluations"])
+        dtype = jnp.result_type(float)
+        fields = (out["speed"], out["status"].astype(float), out["lo"], out["hi"])
+        return tuple(jnp.asarray(x, dtype) for x in fields)
+
+    @jax.custom_jvp
+    def solve(values, angle, omega):
+        return search(values, angle, omega)
+
+    @solve.defjvp
+    def solve_jvp(primals, tangents):
+        values, angle, omega = primals
+        dvalues, dangle, domega = tangents
+        out = search(values, angle, omega)
+        v_c, status = np.asarray(out[0]), np.asarray(out[1]).astype(int)
+        dv = _implicit_tangent(
+            scene, names, values, angle, omega, v_c, status, dvalues, dangle, domega
+        )
+        zero = jnp.zeros_like(out[0])
+        return out, (dv, zero, zero, zero)
+
+    dtype = jnp.result_type(float)
+    values = tuple(jnp.asarray(params[k], dtype) for k in names)
+    speed, status, lo, hi = solve(values, jnp.asarray(angle_deg, dtype), jnp.asarray(omega0, dtype))
+    return CaptureSpeed(
+        speed=speed,
+        status=jax.lax.stop_gradient(status).astype(int),
+        bracket=(jax.lax.stop_gradient(lo), jax.lax.stop_gradient(hi)),
+        evaluations=int(evaluations[-1]) if evaluations else 0,
+    )
+
+
+def _flat_inputs(names, values, angle, omega):
+    arrays = [np.asarray(v, dtype=float) for v in values]
+    angle, omega = np.asarray(angle, dtype=float), np.asarray(omega, dtype=float)
+    shape = np.broadcast_shapes(angle.shape, omega.shape, *(a.shape for a in arrays))
+    size = int(np.prod(shape))
+    flat = lambda x: np.broadcast_to(x, shape).reshape(size).copy()  # noqa: E731
+    params = {k: flat(a) for k, a in zip(names, arrays, strict=True)}
+    return params, flat(angle), flat(omega), shape
+
+
+def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> dict:
+    """The search of the module docstring on concrete values; numpy arrays of ``shape``."""
+    from .._api import simulate
+
+    params, angle, omega, shape = _flat_inputs(names, values, angle, omega)
+    size = angle.size
+    speed = np.zeros(size)
+    status = np.full(size, CaptureStatus.NO_ADHESION)
+    lo_out, hi_out = np.zeros(size), np.zeros(size)
+    lanes = np.flatnonzero(params["f0"] > 0) if adhesive else np.array([], int)
+    evaluations = 0
+    if lanes.size:
+        sub = {k: v[lanes] for k, v in params.items()}
+        res = _root(simulate, scene, sub, angle[lanes], omega[lanes], rtol, speed_range)
+        speed[lanes], status[lanes] = res["speed"], res["status"]
+        lo_out[lanes], hi_out[lanes] = res["lo"], res["hi"]
+        evaluations = res["evaluations"]
+    reshape = lambda x: x.reshape(shape)  # noqa: E731
+    return {
+        "speed": reshape(speed),
+        "status": reshape(status),
+        "lo": reshape(lo_out),
+        "hi": reshape(hi_out),
+        "evaluations": evaluations,
+    }
+
+
+def scan_speeds(params: dict, speed_range=None, points: int = SCAN_POINTS) -> np.ndarray:
+    """The scanned speeds, ``(lanes, points)`` m/s (module docstring)."""
+    if speed_range is not None:
+        grid = np.geomspace(speed_range[0], speed_range[1], points)
+        return np.broadcast_to(grid, (np.size(params["f0"]), points)).copy()
+    v_a = adhesion_speed(params["radius"], params["density"], params["K"], params["f0"])
+    grid = np.asarray(v_a)[:, None] * np.geomspace(*SCAN_RANGE, points)
+    return np.minimum(grid, SPEED_MAX)
+
+
+def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
+    """Scan, rule and root find (module docstring) for lanes with adhesion."""
+    n = angle.size
+    lanes_scene = scene_with(scene, params)
+
+    def run(v):
+        res = simulate(lanes_scene, v, angle, omega)
+        st = np.asarray(res.status)
+        # the secant works on vn_out^2 against v^2 (the energies: nearly linear near v_c,
+        # where the adhesive loss hardly changes with the speed)
+        q = np.where(st == 0, np.asarray(res.vn_out) ** 2, np.nan)
+        return st, q
+
+    grid = scan_speeds(params, speed_range)
+    points = grid.shape[1]
+    st_scan = np.empty((n, points), int)
+    g_scan = np.empty((n, points))
+    for k in range(points):  # one batch shape throughout: one compiled program
+        st_scan[:, k], g_scan[:, k] = run(grid[:, k])
+    evaluations = points
+
+    speed = np.full(n, np.nan)
+    status = np.full(n, CaptureStatus.THRESHOLD)
+    lo, hi = np.full(n, np.nan), np.full(n, np.nan)
+    failed = np.any(st_scan >= 2, axis=1)
+    captured = st_scan == 1
+    rebound = st_scan == 0
+    # the highest captured index with only rebounds above it
+    top = np.where(captured.any(axis=1), points - 1 - np.argmax(captured[:, ::-1], axis=1), -1)
+    none = ~captured.any(axis=1) & ~failed
+    all_cap = (top == points - 1) & ~failed
+    status[none], speed[none] = CaptureStatus.NONE_IN_RANGE, grid[none, 0]
+    status[all_cap], speed[all_cap] = CaptureStatus.ALL_CAPTURED, np.inf
+    status[failed] = CaptureStatus.FAILED
+    active = ~failed & ~none & ~all_cap
+    idx = np.arange(n)
+    below = np.arange(points)[None, :] < top[:, None]
+    multiple = active & np.any(rebound & below, axis=1)
+    status[multiple] = CaptureStatus.MULTIPLE
+
+    # bracket: a captured, b < c the next rebounds (c may be missing: NaN)
+    t = np.clip(top, 0, points - 1)
+    a = grid[idx, t]
+    b = grid[idx, np.minimum(t + 1, points - 1)]
+    gb = g_scan[idx, np.minimum(t + 1, points - 1)]
+    c = np.where(t + 2 < points, grid[idx, np.minimum(t + 2, points - 1)], np.nan)
+    gc = np.where(t + 2 < points, g_scan[idx, np.minimum(t + 2, points - 1)], np.nan)
+    lefts = np.zeros(n, int)  # consecutive steps that landed on a capture
+    done = ~active
+    estimate = np.where(active, b, np.nan)
+    for _ in range(MAX_ITERATIONS):
+        if done.all():
+            break
+        secant = _secant(b, gb, c, gc)
+        ok = np.isfinite(secant) & (secant > a) & (secant < b)
+        bisect = np.sqrt(a * b)
+        x = np.where(ok, secant, bisect)
+        # after a step landed on a capture, aim just above the captured end: the secant's
+        # error is second order, so the root is within about (b - a)^2 / b of it
+        near = a + np.minimum(0.5 * (b - a), 4.0 * (b - a) ** 2 / b)
+        x = np.where(lefts == 1, near, x)
+        x = np.where(lefts >= 2, 0.5 * (a + b), x)
+        x = np.where(done, estimate, x)
+        st, g = run(x)
+        evaluations += 1
+        bad = ~done & (st >= 2)
+        status[bad] = CaptureStatus.FAILED
+        done |= bad
+        cap = ~done & (st == 1)
+        reb = ~done & (st == 0)
+        a = np.where(cap, x, a)
+        lefts = np.where(cap, lefts + 1, np.where(reb, 0, lefts))
+        step = np.abs(b - x)
+        c, gc = np.where(reb, b, c), np.where(reb, gb, gc)
+        b, gb = np.where(reb, x, b), np.where(reb, g, gb)
+        secant = _secant(b, gb, c, gc)
+        good = np.isfinite(secant) & (secant >= a) & (secant <= b)
+        estimate = np.where(~done, np.where(good, secant, b), estimate)
+        # converged: the bracket, or a secant step, below the tolerance (at the noise level of
+        # the margin the next secant would be meaningless)
+        converged = ~done & (((b - a) <= rtol * b) | (reb & (step <= rtol * b)))
+        done |= converged
+    still = ~done
+    status[still & active] = CaptureStatus.NOT_CONVERGED
+    ok = active & (status != CaptureStatus.FAILED)
+    speed[ok] = estimate[ok]
+    lo[active], hi[active] = a[active], b[active]
+    for mask, value in ((none, grid[:, 0]), (all_cap, grid[:, -1])):
+        lo[mask] = np.where(none[mask], 0.0, value[mask])
+        hi[mask] = np.where(none[mask], value[mask], np.inf)
+    return {"speed": speed, "status": status, "lo": lo, "hi": hi, "evaluations": evaluations}
+
+
+def _secant(b, qb, c, qc):
+    """Root in ``v`` of the line through ``(b^2, qb)`` and ``(c^2, qc)`` (NaN if none)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = b**2 - qb * (c**2 - b**2) / (qc - qb)
+        return np.where(s > 0, np.sqrt(np.abs(s)), np.nan)
+
+
+def _implicit_tangent(scene, names, values, angle, omega, v_c, status, dvalues, dangle, domega):
+    """``dv_c`` by the implicit-function theorem (module docstring)."""
+    dtype = jnp.result_type(float)
+    shape = np.shape(v_c)
+    usable = np.isin(status, (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE)) & np.isfinite(v_c)
+    fill = jnp.asarray(np.where(status == CaptureStatus.NO_ADHESION, 0.0, np.nan), dtype)
+    if not usable.any():
+        return jnp.zeros(shape, dtype) * fill
+    factors = np.array([1.0 + EPS, 1.0 + 2.0 * EPS])
+    safe_vc = np.where(usable, v_c, 1.0)
+    speeds = jnp.asarray(safe_vc[..., None] * factors, dtype)  # (*shape, 2)
+    expand = lambda x: jnp.broadcast_to(jnp.asarray(x, dtype)[..., None], shape + (2,))  # noqa: E731
+
+    def g_of(vals, ang, om, v):
+        params = {k: expand(x) for k, x in zip(names, vals, strict=True)}
+        g, _ = _margin(scene, params, v, expand(ang), expand(om))
+        return g
+
+    primals = (tuple(values), angle, omega)
+    # dg/dv: concrete (only the speed moves)
+    _, dg_dv = jax.jvp(lambda v: g_of(*primals, v), (speeds,), (jnp.ones_like(speeds),))
+    # dg/dp . dp: along the caller's tangents
+    _, dg_dp = jax.jvp(
+        lambda vals, ang, om: g_of(vals, ang, om, speeds),
+        primals,
+        (tuple(dvalues), dangle, domega),
+    )
+    ratio = -dg_dp / jnp.where(dg_dv == 0, jnp.nan, dg_dv)
+    dv = 2.0 * ratio[..., 0] - ratio[..., 1]
+    return jnp.where(jnp.asarray(usable), dv, fill)

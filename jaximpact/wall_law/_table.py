@@ -1,0 +1,597 @@
+"""The wall law: rebound tables over radius, incidence angle, spin and speed, tabulated against
+the speed relative to the capture speed, and their interpolation (the same arithmetic as the
+generated C function).
+
+Axes
+----
+- ``radius`` (m): the sphere radii (default: the scene's); interpolated linearly in
+  ``log(radius)``.
+- ``angle_deg`` (deg, >= 0): incidence from the normal; a query with negative tangential speed
+  is mirrored (tangential speed and spin change sign, and so do their results).
+- ``omega0`` (rad/s): initial spin, signed so that ``v_t = r omega`` is rolling.
+- ``speed_ratio``: the impact speed over the reference speed of its (radius, angle, spin): the
+  capture speed where the scene has adhesion (``speed_axis = "capture_ratio"``: below 1 the
+  sphere sticks, the boundary is exact), else 1 m/s (``speed_axis = "speed"``: the ratio is the
+  speed in m/s). Interpolated linearly in ``u = asinh(sqrt(x - 1))`` (capture ratio: ``cor_n``
+  goes like ``sqrt(x - 1)`` just above the capture speed, where ``u ~ sqrt(x - 1)``, and
+  changes slowly with ``log x`` far above it, where ``u ~ (log x)/2 + log 2``) or
+  ``u = x^0.2`` (speed: the damping enters as ``v^0.2``, eq. 21/24 of the paper).
+
+Tabulated (dimensionless, so that they interpolate smoothly): ``cor_n = vn_out / v_n``,
+``vt_ratio = vt_out / speed`` and ``spin_ratio = omega_out r / speed``. The node at
+``speed_ratio = 1`` (capture mode) is the capture speed itself: ``cor_n = 0`` there (the
+model's limit) and the tangential results are extrapolated linearly in ``u`` from the next two
+nodes (the simulator cannot tell a rebound from a capture exactly at the threshold).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._scene import SceneError
+from .._simulate import PARAMETERS, scene_parameters
+from ._capture import CaptureStatus, capture_speed, scene_with
+
+__all__ = [
+    "DEFAULT_ANGLES",
+    "DEFAULT_SPEED_RATIOS",
+    "DEFAULT_SPEEDS",
+    "WallLaw",
+    "WallLawError",
+    "wall_law",
+]
+
+#: Default incidence angles (deg) of the first pass: 0 to 85, every 0.5 degree.
+DEFAULT_ANGLES = np.linspace(0.0, 85.0, 171)
+#: Default speed ratios (capture mode): 1 to 200, 64 nodes even in ``asinh(sqrt(x - 1))``.
+DEFAULT_SPEED_RATIOS = 1.0 + np.sinh(np.linspace(0.0, np.arcsinh(np.sqrt(199.0)), 64)) ** 2
+#: Default speeds (m/s) for scenes without adhesion: 0.01 to 100 m/s, geometric.
+DEFAULT_SPEEDS = np.geomspace(0.01, 100.0, 49)
+SPEED_MAX = 1000.0  # m/s (docs/input_ranges.md)
+OUTPUTS = ("cor_n", "vt_ratio", "spin_ratio")
+
+
+class WallLawError(RuntimeError):
+    """The wall law could not be built (a capture speed or an impact of the grid failed)."""
+
+
+@dataclass
+class WallLaw:
+    """A tabulated wall law (numpy arrays; see the module docstring for the axes).
+
+    Arrays ``(radius, angle_deg, omega0)``: ``capture_speed`` (m/s; 0 without adhesion),
+    ``capture_status`` (:class:`CaptureStatus`), ``reference_speed`` (m/s). Arrays ``(radius,
+    angle_deg, omega0, speed_ratio)``: ``speed`` (m/s), ``status`` (simulate's codes; the
+    ``speed_ratio = 1`` node is set, not simulated: 0), ``cor_n``, ``vt_ratio``, ``spin_ratio``
+    and, for reading, ``cor_t`` (NaN at angle 0), ``vt_out`` (m/s), ``omega_out`` (rad/s),
+    ``rebound_angle_deg``. ``uncertainty``: with posterior draws, ``capture_probability`` and
+    ``cor_n_mean``, ``cor_n_sd``, ``cor_n_q05``, ``cor_n_q95`` (over the draws that rebound)
+    per cell, and ``draws``, the number used.
+    """
+
+    radius: np.ndarray
+    angle_deg: np.ndarray
+    omega0: np.ndarray
+    speed_ratio: np.ndarray
+    speed_axis: str
+    capture_speed: np.ndarray
+    capture_status: np.ndarray
+    reference_speed: np.ndarray
+    speed: np.ndarray
+    status: np.ndarray
+    cor_n: np.ndarray
+    vt_ratio: np.ndarray
+    spin_ratio: np.ndarray
+    scene: dict
+    seconds: float = 0.0
+    impacts: int = 0
+    uncertainty: dict = field(default_factory=dict)
+
+    # ----- derived, for reading -----
+    @property
+    def cor_t(self) -> np.ndarray:
+        sin = np.sin(np.radians(self.angle_deg))[None, :, None, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(sin > 0, self.vt_ratio / sin, np.nan)
+
+    @property
+    def vt_out(self) -> np.ndarray:
+        return self.vt_ratio * self.speed
+
+    @property
+    def omega_out(self) -> np.ndarray:
+        return self.spin_ratio * self.speed / self.radius[:, None, None, None]
+
+    @property
+    def rebound_angle_deg(self) -> np.ndarray:
+        vn = self.cor_n * self.speed * np.cos(np.radians(self.angle_deg))[None, :, None, None]
+        out = np.degrees(np.arctan2(self.vt_out, vn))
+        return np.where(self.cor_n > 0, out, np.nan)
+
+    @property
+    def shape(self) -> tuple:
+        return self.cor_n.shape
+
+    # ----- interpolation (the generated C function does the same arithmetic) -----
+    def reference_at(self, idx, w, angle):
+        """The reference speed at interpolation cells ``idx`` with weights ``w``: capture
+        mode interpolates the normal capture speed ``v_c cos(angle)``, which changes slowly
+        with the angle (``v_c`` itself grows like ``1 / cos``), and divides by ``cos``."""
+        if self.speed_axis != "capture_ratio":
+            return _multilinear3(self.reference_speed, idx, w)
+        cos_nodes = np.cos(np.radians(self.angle_deg))[None, :, None]
+        normal = _multilinear3(self.reference_speed * cos_nodes, idx, w)
+        return normal / np.cos(np.radians(angle))
+
+    def u_of(self, x):
+        """The interpolation coordinate of the speed ratio (module docstring)."""
+        x = np.asarray(x, dtype=float)
+        if self.speed_axis == "capture_ratio":
+            return np.arcsinh(np.sqrt(np.maximum(x - 1.0, 0.0)))
+        return np.maximum(x, 0.0) ** 0.2
+
+    def evaluate(self, radius, vn, vt, omega=0.0):
+        """The wall law at impacts given by ``radius`` (m), normal speed ``vn`` (m/s, > 0,
+        toward the wall), tangential speed ``vt`` (m/s, signed) and spin ``omega`` (rad/s,
+        ``vt = r omega`` rolling). Arrays broadcast.
+
+        Returns ``(code, vn_out, vt_out, omega_out)``: ``code`` bit 0 (1) set where captured,
+        bit 1 (2) where an input was outside the table and clamped to its edge, bit 2 (4)
+        where the input is invalid (radius or ``vn`` not > 0, or not finite); ``vn_out`` (m/s,
+        away from the wall), ``vt_out`` (m/s), ``omega_out`` (rad/s): all 0 where captured or
+        invalid.
+        """
+        radius, vn, vt, omega = np.broadcast_arrays(
+            *(np.asarray(v, dtype=float) for v in (radius, vn, vt, omega))
+        )
+        with np.errstate(invalid="ignore"):
+            valid = (radius > 0) & (vn > 0) & np.isfinite(radius + vn + vt + omega)
+        radius, vn = np.where(valid, radius, self.radius[0]), np.where(valid, vn, 1.0)
+        vt, omega = np.where(valid, vt, 0.0), np.where(valid, omega, 0.0)
+        sign = np.where(vt < 0, -1.0, 1.0)
+        vt_abs, om = np.abs(vt), omega * sign
+        speed = np.hypot(vn, vt_abs)
+        angle = np.degrees(np.arctan2(vt_abs, vn))
+        clamped = np.zeros(radius.shape, bool)
+        # radius: log, angle and spin: linear
+        ir, wr, c = _cell(np.log(self.radius), np.log(radius))
+        clamped |= c
+        ia, wa, c = _cell(self.angle_deg, angle)
+        clamped |= c
+        iw, ww, c = _cell(self.omega0, om)
+        clamped |= c
+        v_ref = self.reference_at((ir, ia, iw), (wr, wa, ww), angle)
+        captured = (speed < v_ref) if self.speed_axis == "capture_ratio" else speed < 0
+        x = speed / v_ref
+        ix, wx, c = _cell(self.u_of(self.speed_ratio), self.u_of(x))
+        clamped |= c & ~captured
+        out = {}
+        for name in OUTPUTS:
+            out[name] = _multilinear4(getattr(self, name), (ir, ia, iw, ix), (wr, wa, ww, wx))
+        captured &= valid
+        clamped &= valid
+        dead = captured | ~valid
+        vn_out = np.where(dead, 0.0, out["cor_n"] * vn)
+        vt_out = np.where(dead, 0.0, out["vt_ratio"] * speed * sign)
+        omega_out = np.where(dead, 0.0, out["spin_ratio"] * speed / radius * sign)
+        code = captured.astype(int) | (clamped.astype(int) << 1) | ((~valid).astype(int) << 2)
+        return code, vn_out, vt_out, omega_out
+
+
+def _cell(nodes, q):
+    """Lower node index, weight of the upper node and whether ``q`` was clamped."""
+    nodes = np.asarray(nodes, dtype=float)
+    q = np.asarray(q, dtype=float)
+    if nodes.size == 1:
+        scale = max(1.0, abs(float(nodes[0])))
+        return np.zeros(q.shape, int), np.zeros(q.shape), np.abs(q - nodes[0]) > 1e-9 * scale
+    lo_out, hi_out = q < nodes[0], q > nodes[-1]
+    qc = np.clip(q, nodes[0], nodes[-1])
+    i = np.clip(np.searchsorted(nodes, qc, side="right") - 1, 0, nodes.size - 2)
+    w = (qc - nodes[i]) / (nodes[i + 1] - nodes[i])
+    return i, w, lo_out | hi_out
+
+
+def _multilinear3(table, idx, w):
+    table = np.asarray(table)
+    out = 0.0
+    for corner in range(8):
+        bits = [(corner >> k) & 1 for k in range(3)]
+        ii = tuple(
+            np.minimum(i + b, table.shape[k] - 1)
+            for k, (i, b) in enumerate(zip(idx, bits, strict=True))
+        )
+        weight = 1.0
+        for k, b in enumerate(bits):
+            weight = weight * (w[k] if b else 1.0 - w[k])
+        out = out + weight * table[ii]
+    return out
+
+
+def _multilinear4(table, idx, w):
+    out = 0.0
+    for corner in range(16):
+        bits = [(corner >> k) & 1 for k in range(4)]
+        ii = tuple(
+            np.minimum(i + b, table.shape[k] - 1)
+            for k, (i, b) in enumerate(zip(idx, bits, strict=True))
+        )
+        weight = 1.0
+        for k, b in enumerate(bits):
+            weight = weight * (w[k] if b else 1.0 - w[k])
+        out = out + weight * table[ii]
+    return out
+
+
+def scene_attributes(scene) -> dict:
+    """The scene as flat attributes (``contact.f0`` -> value; switches as text)."""
+    attrs = {}
+    for section in ("particle", "contact", "model", "solver"):
+        part = getattr(scene, section)
+        for name in part.__dataclass_fields__:
+            value = getattr(part, name)
+            arr = np.asarray(value)
+            key = f"{section}.{name.rstrip('_')}"
+            if arr.dtype.kind in "fiu" and arr.ndim == 0:
+                attrs[key] = float(arr) if arr.dtype.kind == "f" else int(arr)
+            elif arr.dtype.kind == "b" and arr.ndim == 0:
+                attrs[key] = str(bool(arr)).lower()
+            elif isinstance(value, str) or value is None:
+                attrs[key] = "" if value is None else value
+            elif arr.ndim > 0:
+                attrs[key] = np.asarray(arr, dtype=float).ravel().tolist().__repr__()
+    return attrs
+
+
+def _check_axis(name: str, values, lo=None, hi=None, lo_open=False, unit=""):
+    v = np.asarray(values, dtype=float).ravel()
+    if v.size == 0:
+        raise SceneError(f"{name}: at least one value is needed")
+    if not np.all(np.isfinite(v)):
+        raise SceneError(f"{name}: values must be finite")
+    if np.any(np.diff(np.sort(v)) == 0):
+        raise SceneError(f"{name}: values must be distinct")
+    if lo is not None and (np.any(v <= lo) if lo_open else np.any(v < lo)):
+        side = "(" if lo_open else "["
+        raise SceneError(f"{name}: values must be in {side}{lo:g}, {hi:g}] {unit}".rstrip())
+    if hi is not None and np.any(v > hi):
+        side = "(" if lo_open else "["
+        raise SceneError(f"{name}: values must be in {side}{lo:g}, {hi:g}] {unit}".rstrip())
+    return np.sort(v)
+
+
+def wall_law(
+    scene,
+    radius=None,
+    angle_deg=None,
+    omega0=(0.0,),
+    speed_ratio=None,
+    *,
+    draws=None,
+    max_draws: int = 20,
+    refine: bool = True,
+    refine_tol: float = 2e-4,
+    progress=None,
+) -> WallLaw:
+    """Tabulate the wall law of ``scene`` (module docstring).
+
+    **Arguments:**
+    - `scene`: a `Scene` (scalar parameters).
+    - `radius`: radii (m); default the scene's.
+    - `angle_deg`: incidence angles (deg, in [0, 90)); default :data:`DEFAULT_ANGLES`.
+    - `omega0`: spins (rad/s); default 0 only (CFD parcels rarely carry spin).
+    - `speed_ratio`: speeds over the capture speed (>= 1; the node 1 is added), default
+      :data:`DEFAULT_SPEED_RATIOS`; for a scene without adhesion, speeds in m/s (default
+      :data:`DEFAULT_SPEEDS`).
+    - `draws`: posterior draws, a dict ``name -> 1-D array`` of scene parameters (or ``None``):
+      the table then carries the capture probability and the spread of ``cor_n`` per cell.
+    - `max_draws`: at most this many draws are used (evenly spaced).
+    - `refine`: split the angle intervals where linear interpolation would miss by more than
+      `refine_tol` in ``cor_n``, ``cor_t`` or ``omega_out r / speed`` (the onset of rolling
+      puts a kink in them): a second pass on those angles only.
+    - `progress`: a callable taking a one-line message, or None.
+
+    **Returns:** a :class:`WallLaw`.
+
+    **Raises:** `SceneError` (bad input, naming it); :class:`WallLawError` where a capture
+    speed or an impact of the grid failed.
+    """
+    from .._api import simulate
+
+    say = progress or (lambda message: None)
+    start = time.perf_counter()
+    params = scene_parameters(scene)
+    for k, v in params.items():
+        if np.ndim(v) != 0:
+            raise SceneError(f"wall_law needs a scene with one value per parameter ({k})")
+    base = {k: float(v) for k, v in params.items()}
+    radius = _check_axis(
+        "radius (--radius)", [base["radius"]] if radius is None else radius, 1e-9, 1.0, unit="m"
+    )
+    angle = _check_axis(
+        "angle_deg (--angle)", DEFAULT_ANGLES if angle_deg is None else angle_deg, 0.0, 89.9, unit="deg"
+    )
+    omega = _check_axis("omega0 (--spin)", omega0, -1e9, 1e9, unit="rad/s")
+    adhesive = bool(scene.model.adhesion) and base["f0"] > 0
+    if adhesive:
+        x = _check_axis(
+            "speed_ratio (--speed)",
+            DEFAULT_SPEED_RATIOS if speed_ratio is None else speed_ratio,
+            1.0,
+            SPEED_MAX,
+            unit="(speed / capture speed)",
+        )
+        if x[0] != 1.0:
+            x = np.concatenate([[1.0], x])
+        if x.size < 3:
+            raise SceneError("speed_ratio: at least two values above 1 are needed")
+    else:
+        x = _check_axis(
+            "speed (--speed, m/s: the scene has no adhesion)",
+            DEFAULT_SPEEDS if speed_ratio is None else speed_ratio,
+            0.0,
+            SPEED_MAX,
+            lo_open=True,
+            unit="m/s",
+        )
+    R, W, X = radius.size, omega.size, x.size
+    ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
+    # pass 1 on the given angles; then, unless told otherwise, the angle intervals where
+    # linear interpolation would miss by more than `tol` (kinks: the onset of rolling) are
+    # split, in batches of pass 1's lane count (one compiled program)
+    rows = ctx.angles(angle, batch=None)
+    if refine and angle.size >= 3:
+        extra = _refinement(rows, angle, tol=refine_tol)
+        if extra.size:
+            say(f"refining: {extra.size} more angles where the table bends sharply")
+            more = ctx.angles(extra, batch=ctx.batch)
+            rows = {k: np.concatenate([rows[k], more[k]], axis=1) for k in rows}
+            angle = np.concatenate([angle, extra])
+            order = np.argsort(angle)
+            angle = angle[order]
+            rows = {k: v[:, order] for k, v in rows.items()}
+    A = angle.size
+    law = WallLaw(
+        radius=radius,
+        angle_deg=angle,
+        omega0=omega,
+        speed_ratio=x,
+        speed_axis="capture_ratio" if adhesive else "speed",
+        capture_speed=rows["v_c"].reshape(R, A, W),
+        capture_status=rows["c_status"].reshape(R, A, W).astype(int),
+        reference_speed=rows["v_ref"].reshape(R, A, W),
+        speed=rows["speed"].reshape(R, A, W, X),
+        status=rows["status"].reshape(R, A, W, X).astype(int),
+        cor_n=rows["cor_n"].reshape(R, A, W, X),
+        vt_ratio=rows["vt_ratio"].reshape(R, A, W, X),
+        spin_ratio=rows["spin_ratio"].reshape(R, A, W, X),
+        scene=scene_attributes(scene),
+    )
+    impacts = ctx.impacts
+    if draws is not None:
+        law.uncertainty = _uncertainty(simulate, scene, law, draws, max_draws, say)
+        impacts += law.uncertainty["draws"] * law.speed.size
+    law.seconds = time.perf_counter() - start
+    law.impacts = impacts
+    return law
+
+
+class _Context:
+    """Computes table rows (capture speed and outputs) for sets of angles, all radii and
+    spins, in batches of one lane count."""
+
+    def __init__(self, simulate, scene, base, radius, omega, x, adhesive, say):
+        self.simulate, self.scene, self.base = simulate, scene, base
+        self.radius, self.omega, self.x, self.adhesive, self.say = radius, omega, x, adhesive, say
+        self.batch = None
+        self.impacts = 0
+
+    def angles(self, angle, batch=None) -> dict:
+        """Rows for ``angle``: arrays ``(R, A, W[, X])`` flattened to ``(R, A*W[, X])``."""
+        R, A, W = self.radius.size, angle.size, self.omega.size
+        r = np.broadcast_to(self.radius[:, None, None], (R, A, W)).reshape(-1)
+        a = np.broadcast_to(angle[None, :, None], (R, A, W)).reshape(-1)
+        w = np.broadcast_to(self.omega[None, None, :], (R, A, W)).reshape(-1)
+        n = r.size
+        batch = batch or n
+        if self.batch is None:
+            self.batch = batch
+        parts = []
+        for lo in range(0, n, batch):
+            idx = np.arange(lo, min(lo + batch, n))
+            pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
+            out = self._lanes(r[pad], a[pad], w[pad])
+            parts.append({k: v[: idx.size] for k, v in out.items()})
+        rows = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        return {k: v.reshape((R, A * W) + v.shape[1:]) for k, v in rows.items()}
+
+    def _lanes(self, r, a, w) -> dict:
+        n, x = r.size, self.x
+        params = {k: np.full(n, v) for k, v in self.base.items()}
+        params["radius"] = r
+        lane_scene = scene_with(self.scene, params)
+        if self.adhesive:
+            self.say(f"capture speeds of {n} (radius, angle, spin) lanes")
+            cap = capture_speed(lane_scene, a, w)
+            v_c = np.asarray(cap.speed, dtype=float)
+            c_status = np.asarray(cap.status)
+            self.impacts += cap.evaluations * n
+            bad = ~np.isin(c_status, (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE))
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise WallLawError(
+                    f"{int(bad.sum())} of {n} capture speeds could not be found, e.g. radius "
+                    f"{r[i]:g} m, angle {a[i]:g} deg, spin {w[i]:g} rad/s: "
+                    f"{CaptureStatus.NAMES[int(c_status[i])]}"
+                )
+            v_ref = v_c
+            top = float(np.max(v_ref) * x[-1])
+            if top > SPEED_MAX:
+                raise SceneError(
+                    f"speed_ratio: the table would reach {top:.4g} m/s (largest ratio "
+                    f"{x[-1]:g} times the largest capture speed {np.max(v_ref):.4g} m/s), "
+                    f"above the speed range's {SPEED_MAX:g} m/s; lower the largest ratio or "
+                    "angle"
+                )
+        else:
+            v_c = np.zeros(n)
+            c_status = np.full(n, CaptureStatus.NO_ADHESION)
+            v_ref = np.ones(n)
+        X = x.size
+        speed = v_ref[:, None] * x[None, :]
+        status = np.zeros((n, X), int)
+        out = {k: np.full((n, X), np.nan) for k in OUTPUTS}
+        self.say(f"{n * X} impacts ({n} lanes x {X} speeds)")
+        first = 1 if self.adhesive else 0
+        for k in range(first, X):  # one batch shape: one compiled program with the capture's
+            res = self.simulate(lane_scene, speed[:, k], a, w)
+            status[:, k] = np.asarray(res.status)
+            s = speed[:, k]
+            out["cor_n"][:, k] = np.asarray(res.cor_n)
+            out["vt_ratio"][:, k] = np.asarray(res.vt_out) / s
+            out["spin_ratio"][:, k] = np.asarray(res.omega_out) * r / s
+            self.impacts += n
+        failed = status >= 2
+        if failed.any():
+            i, k = (int(j[0]) for j in np.nonzero(failed))
+            raise WallLawError(
+                f"{int(failed.sum())} impacts of the grid failed, e.g. speed "
+                f"{speed[i, k]:.6g} m/s, angle {a[i]:g} deg, spin {w[i]:g} rad/s, radius "
+                f"{r[i]:g} m"
+            )
+        captured = status[:, first:] == 1
+        if captured.any():
+            i, k = (int(j[0]) for j in np.nonzero(captured))
+            raise WallLawError(
+                f"{int(captured.sum())} impacts above the capture speed were captured "
+                f"(capture is not one threshold there), e.g. speed ratio {x[k + first]:g}, "
+                f"angle {a[i]:g} deg, spin {w[i]:g} rad/s"
+            )
+        if self.adhesive:  # the node at the capture speed itself (module docstring)
+            u = np.arcsinh(np.sqrt(x - 1.0))
+            t = (u[0] - u[1]) / (u[2] - u[1])
+            for name in ("vt_ratio", "spin_ratio"):
+                col = out[name]
+                col[:, 0] = col[:, 1] + t * (col[:, 2] - col[:, 1])
+            out["cor_n"][:, 0] = 0.0
+        return {
+            "v_c": v_c,
+            "c_status": c_status,
+            "v_ref": v_ref,
+            "speed": speed,
+            "status": status,
+            **out,
+        }
+
+
+def _refinement(rows: dict, angle, tol: float) -> np.ndarray:
+    """New angles splitting the intervals where linear interpolation in angle would miss by
+    more than ``tol`` in ``cor_n``, ``cor_t`` or ``spin_ratio``.
+
+    The miss of an interval is estimated from the second differences at its two ends (a kink
+    inside it gives ``|d2| ~ h * (jump of the slope)`` and a miss up to ``|d2| / 4``); an
+    interval is split into ``ceil(miss / tol)`` parts (at most 8).
+    """
+    A = angle.size
+    R = rows["cor_n"].shape[0]
+    W = rows["cor_n"].shape[1] // A
+    sin = np.sin(np.radians(angle))
+    fields = []
+    for name in ("cor_n", "vt_ratio", "spin_ratio"):
+        f = rows[name].reshape(R, A, W, -1)
+        if name == "vt_ratio":  # cor_t = vt_ratio / sin(angle): its error is vt's over sin
+            f = f / np.where(sin > 0, sin, np.inf)[None, :, None, None]
+        fields.append(f)
+    h = np.diff(angle)
+    miss = np.zeros(A - 1)
+    for f in fields:
+        # second differences on a non-uniform grid, scaled to the interval's width
+        left, right = f[:, :-2], f[:, 2:]
+        mid = f[:, 1:-1]
+        h0, h1 = h[:-1], h[1:]
+        shape = (1, -1, 1, 1)
+        w0 = (h1 / (h0 + h1)).reshape(shape)
+        w1 = (h0 / (h0 + h1)).reshape(shape)
+        d2 = np.abs(w0 * left + w1 * right - mid)  # the node's miss by its neighbours' line
+        d2 = np.nan_to_num(np.max(d2, axis=(0, 2, 3)), nan=0.0)
+        node = np.concatenate([[0.0], d2, [0.0]])
+        miss = np.maximum(miss, np.maximum(node[:-1], node[1:]) / 2.0)
+    parts = np.minimum(np.ceil(miss / tol), 8).astype(int)
+    new = [angle[j] + h[j] * np.arange(1, m) / m for j, m in enumerate(parts) if m > 1]
+    return np.concatenate(new) if new else np.array([])
+
+
+def _uncertainty(simulate, scene, law, draws, max_draws, say) -> dict:
+    """Capture probability and spread of ``cor_n`` per cell over posterior draws, each draw
+    simulated at the table's speeds (those of the scene's own values)."""
+    names = [k for k in draws if k in PARAMETERS or k == "G_star"]
+    if not names:
+        raise SceneError("draws: no scene parameter among " + ", ".join(map(str, draws)))
+    columns = [np.asarray(draws[k], dtype=float).ravel() for k in names]
+    size = columns[0].size
+    if size == 0 or any(c.size != size for c in columns):
+        raise SceneError("draws: every parameter needs the same number (> 0) of draws")
+    if not all(np.all(np.isfinite(c)) for c in columns):
+        raise SceneError("draws: values must be finite")
+    if not (isinstance(max_draws, int) and max_draws >= 1):
+        raise SceneError(f"max_draws must be an integer >= 1, got {max_draws!r}")
+    pick = np.linspace(0, size - 1, min(max_draws, size)).round().astype(int)
+    R, A, W, X = law.shape
+    n = R * A * W
+    r = np.broadcast_to(law.radius[:, None, None], (R, A, W)).reshape(-1)
+    ang = np.broadcast_to(law.angle_deg[None, :, None], (R, A, W)).reshape(-1)
+    om = np.broadcast_to(law.omega0[None, None, :], (R, A, W)).reshape(-1)
+    base = {k: float(v) for k, v in scene_parameters(scene).items()}
+    speed = law.speed.reshape(n, X)
+    captured = np.zeros((pick.size, n, X), bool)
+    cor_n = np.full((pick.size, n, X), np.nan)
+    say(f"{pick.size} posterior draws x {n * X} impacts")
+    for d, j in enumerate(pick):
+        p = {k: np.full(n, v) for k, v in base.items()}
+        p["radius"] = r
+        for k, c in zip(names, columns, strict=True):
+            p[k] = np.full(n, c[j])
+        s = scene_with(scene, p)
+        for k in range(X):
+            res = simulate(s, speed[:, k], ang, om)
+            st = np.asarray(res.status)
+            if np.any(st >= 2):
+                raise WallLawError(f"draw {int(j)}: {int(np.sum(st >= 2))} impacts failed")
+            captured[d, :, k] = st == 1
+            cor_n[d, :, k] = np.where(st == 0, np.asarray(res.cor_n), np.nan)
+    shape4 = law.shape
+    with np.errstate(invalid="ignore"), _quiet():
+        stats = {
+            "capture_probability": captured.mean(axis=0),
+            "cor_n_mean": np.nanmean(cor_n, axis=0),
+            "cor_n_sd": np.nanstd(cor_n, axis=0),
+            "cor_n_q05": np.nanquantile(cor_n, 0.05, axis=0),
+            "cor_n_q95": np.nanquantile(cor_n, 0.95, axis=0),
+        }
+    out = {k: v.reshape(shape4) for k, v in stats.items()}
+    out["draws"] = int(pick.size)
+    out["parameters"] = names
+    return out
+
+
+class _quiet:
+    """Silence numpy's all-NaN slice warnings (cells captured at every draw)."""
+
+    def __enter__(self):
+        import warnings
+
+        self._w = warnings.catch_warnings()
+        self._w.__enter__()
+        warnings.simplefilter("ignore", RuntimeWarning)
+
+    def __exit__(self, *exc):
+        return self._w.__exit__(*exc)
+
+
+def degrees_to_speeds(speed, angle_deg):
+    """``(vn, vt)`` of an impact of ``speed`` (m/s) at ``angle_deg`` from the normal."""
+    th = np.radians(angle_deg)
+    return speed * np.cos(th), speed * np.sin(th)

@@ -1,0 +1,184 @@
+"""``jaximpact wall-law``: tabulate a scene's wall law and generate code for CFD solvers."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+EPILOG = """\
+grids: --angle and --spin take one SPEC each, --speed one SPEC, --radius one or more values:
+    VALUE                    one value              --spin 0
+    V1,V2,...                a list                 --angle 0,30,60
+    START:STOP:NUM           NUM values, linear     --angle 0:85:171  (ends included)
+    START:STOP:NUM:log       NUM values, geometric  --speed 1.001:200:40:log
+  --angle: degrees from the normal, in [0, 89.9] (a negative tangential speed is mirrored);
+  --spin: rad/s (default 0: CFD parcels rarely carry spin); --radius: m (default the scene's);
+  --speed: the speed over the capture speed (>= 1; the node 1 is added) for a scene with
+  adhesion, the speed in m/s for one without. Defaults: angles 0 to 85 every 0.5 deg, then
+  the intervals where the table bends sharply (the onset of rolling) split to 1/16 deg
+  (--no-refine: not); 64 speed ratios from 1 to 200 even in asinh(sqrt(ratio - 1)); without
+  adhesion 49 speeds 0.01-100 m/s.
+
+output (in DIR, each file written atomically):
+  wall_law.nc            NetCDF-4 (xarray.open_dataset): coordinates radius, angle_deg,
+                         omega0, speed_ratio; capture_speed, cor_n, cor_t, vt_out, omega_out,
+                         rebound_angle_deg, ... with units; the scene as attributes
+  wall_law.parquet       the same as a long table (one row per cell; units as field metadata)
+  jaximpact_wall_law.h   dependency-free C99: jaximpact_wall_law(radius, vn, vt, omega, ...)
+  openfoam/              patch interaction model jaximpactWallLaw (wmake libso; see
+                         openfoam/cloudProperties.jaximpact)
+  fluent/                DEFINE_DPM_BC UDF jaximpact_wall_law_bc
+
+uncertainty: --draws FILE.nc (from jaximpact fit --posterior --draws) adds, per cell, the
+  probability of capture and the mean, sd, 5 and 95 % quantiles of cor_n over up to
+  --max-draws draws (each draw simulates the whole table once more).
+
+exit status: 0 done; 1 the computation failed (a capture speed or an impact of the grid);
+  2 bad input (one line naming the option, field or file).
+"""
+
+
+def _values(option: str, spec: str, name: str):
+    """The values of ``--option SPEC`` (the sweep grid syntax)."""
+    from .._scene import SceneError
+    from ..sweep import SweepError, parse_grid
+
+    try:
+        return parse_grid([f"{name}={spec}"])[name]
+    except SweepError as err:
+        text = str(err).replace(f"grid '{name}={spec}'", f"{option} {spec!r}")
+        text = text.replace("NAME=", "").replace(f"{name} ", f"{option} ")
+        raise SceneError(text) from None
+
+
+def cmd_wall_law(args) -> int:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+
+    from .. import load_scene
+    from .._paths import FileProblem, prepare_output
+    from .._scene import SceneError
+    from .._scene_io import describe_scene_source
+    from ._check import compare_with_simulate, random_points
+    from ._codegen import HEADER_NAME, write_code
+    from ._io import read_draws, write_netcdf, write_parquet
+    from ._table import WallLawError, wall_law
+
+    started = time.perf_counter()
+    scene = load_scene(args.scene)
+    radius = None
+    if args.radius:
+        radius = np.concatenate([_values("--radius", r, "radius") for r in args.radius])
+    angle = _values("--angle", args.angle, "angle_deg") if args.angle else None
+    spin = _values("--spin", args.spin, "omega0") if args.spin else (0.0,)
+    speed = _values("--speed", args.speed, "speed") if args.speed else None
+    if args.max_draws < 1:
+        raise SceneError(f"--max-draws must be an integer >= 1, got {args.max_draws}")
+    if args.check < 0:
+        raise SceneError(f"--check must be an integer >= 0, got {args.check}")
+    draws = read_draws(args.draws) if args.draws else None
+    try:
+        import h5netcdf  # noqa: F401
+        import xarray  # noqa: F401
+    except ImportError:
+        raise SceneError(
+            'wall-law writes NetCDF with xarray and h5netcdf: pip install "jaximpact[wall-law]"'
+        ) from None
+    out = args.output
+    from pathlib import Path
+
+    directory = Path(out)
+    if directory.exists() and not directory.is_dir():
+        raise FileProblem(out, "is a file; -o names a directory for the wall law's files")
+    prepare_output(directory / "wall_law.nc", "NetCDF file")
+
+    scene_name = describe_scene_source(args.scene)
+    progress = None if args.quiet else (lambda m: print(f"  {m}", file=sys.stderr))
+    try:
+        law = wall_law(
+            scene,
+            radius=radius,
+            angle_deg=angle,
+            omega0=spin,
+            speed_ratio=speed,
+            draws=draws,
+            max_draws=args.max_draws,
+            refine=not args.no_refine,
+            progress=progress,
+        )
+    except WallLawError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    write_netcdf(directory / "wall_law.nc", law, scene_name)
+    write_parquet(directory / "wall_law.parquet", law, scene_name)
+    write_code(law, directory, scene_name)
+    R, A, W, X = law.shape
+    print(f"scene: {scene_name}")
+    print(
+        f"wall law: {R} radius x {A} angle x {W} spin x {X} speed nodes, "
+        f"{law.impacts} impacts simulated in {law.seconds:.1f} s"
+    )
+    if law.speed_axis == "capture_ratio":
+        vc = law.capture_speed
+        print(f"capture speed: {vc.min():.6g} to {vc.max():.6g} m/s")
+        multiple = int(np.sum(law.capture_status == 2))
+        if multiple:
+            print(
+                f"warning: at {multiple} (radius, angle, spin) capture is not one threshold; "
+                "the table sticks below the highest captured band (capture_status 'multiple')",
+                file=sys.stderr,
+            )
+    else:
+        print("the scene has no adhesion: nothing sticks; the speed axis is in m/s")
+    if law.uncertainty:
+        print(f"uncertainty: {law.uncertainty['draws']} posterior draws")
+    if args.check:
+        pts = random_points(law, args.check, seed=0)
+        c = compare_with_simulate(law, scene, pts)
+        agree = c["status_agree"] | c["near_capture"]
+        err = c["error"]
+        print(
+            f"check against simulate at {args.check} random points: statuses agree at "
+            f"{int(agree.sum())} (outside 0.1 % of the capture speed); largest errors: "
+            f"cor_n {np.nanmax(err['cor_n']):.2e}, cor_t {np.nanmax(err['cor_t']):.2e}, "
+            f"omega_out r/speed {np.nanmax(err['spin_ratio']):.2e}"
+        )
+    for name in ("wall_law.nc", "wall_law.parquet", HEADER_NAME, "openfoam/", "fluent/"):
+        print(f"wrote {directory / name}")
+    print(f"done in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
+def add_wall_law_command(sub) -> None:
+    """Register ``jaximpact wall-law`` on the subcommand parsers ``sub``."""
+    p = sub.add_parser(
+        "wall-law",
+        help="a wall law for CFD codes: capture speed, rebound tables, C/OpenFOAM/Fluent code",
+        description="Tabulate a scene's wall law: for each radius, incidence angle and spin the "
+        "capture speed, and above it cor_n, cor_t, the rebound spin and angle against the "
+        "speed relative to the capture speed; write it as NetCDF and Parquet with a C99 "
+        "header, an OpenFOAM patch interaction model and a Fluent UDF that apply it.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("scene", nargs="?", help="scene: an embedded name or a TOML file")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--radius", nargs="+", metavar="R", help="radii, m (default the scene's)")
+    p.add_argument("--angle", metavar="SPEC", help="incidence angles, deg (see below)")
+    p.add_argument("--spin", metavar="SPEC", help="spins, rad/s (default 0)")
+    p.add_argument("--speed", metavar="SPEC", help="speed ratios (or m/s without adhesion)")
+    p.add_argument("--draws", metavar="FILE.nc", help="posterior draws (fit --posterior --draws)")
+    p.add_argument("--max-draws", type=int, default=20, help="draws used (default 20)")
+    p.add_argument("--no-refine", action="store_true", help="no second pass on sharp bends")
+    p.add_argument(
+        "--check",
+        type=int,
+        default=0,
+        metavar="N",
+        help="compare the table with simulate at N random points and print the errors",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.set_defaults(func=cmd_wall_law)
