@@ -27,5 +27,10 @@ from ._simulate import integration_settings as integration_settings
 from ._simulate import required_terms as required_terms
 from ._simulate import scene_parameters as scene_parameters
 from ._simulate import stiffness_estimate as stiffness_estimate
+from .wall_law import CaptureSpeed as CaptureSpeed
+from .wall_law import CaptureStatus as CaptureStatus
+from .wall_law import WallLaw as WallLaw
+from .wall_law import capture_speed as capture_speed
+from .wall_law import wall_law as wall_law
 
 __version__ = "0.1.0"

@@ -6,6 +6,7 @@ commands:
   fit       identify contact parameters (C_A, C_H, f0, friction, ...) from rebound data;
             --posterior (NUTS), --profile NAME
   design    choose the impacts to measure next (D-optimal, from candidate rows)
+  wall-law  a wall law for CFD codes: capture speed, rebound tables, C/OpenFOAM/Fluent code
   show      a scene as resolved: derived quantities, solver, the terms it compiles
   scenes    the embedded scenes, by name (every SCENE argument takes a name or a path)
 
@@ -334,6 +335,9 @@ def build_parser(plugins: bool = True) -> argparse.ArgumentParser:
     sim.add_argument("--precision", choices=("float64", "float32"), default="float64")
     sim.set_defaults(func=cmd_simulate)
     add_sweep_command(sub)
+    from .wall_law.cli import add_wall_law_command
+
+    add_wall_law_command(sub)
     show = sub.add_parser(
         "show",
         help="a scene as resolved: derived quantities, solver, compiled terms",

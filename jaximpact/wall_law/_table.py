@@ -312,7 +312,11 @@ def wall_law(
         "radius (--radius)", [base["radius"]] if radius is None else radius, 1e-9, 1.0, unit="m"
     )
     angle = _check_axis(
-        "angle_deg (--angle)", DEFAULT_ANGLES if angle_deg is None else angle_deg, 0.0, 89.9, unit="deg"
+        "angle_deg (--angle)",
+        DEFAULT_ANGLES if angle_deg is None else angle_deg,
+        0.0,
+        89.9,
+        unit="deg",
     )
     omega = _check_axis("omega0 (--spin)", omega0, -1e9, 1e9, unit="rad/s")
     adhesive = bool(scene.model.adhesion) and base["f0"] > 0
