@@ -304,23 +304,13 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
     evaluations = points
 
     speed = np.full(n, np.nan)
-    status = np.full(n, CaptureStatus.THRESHOLD)
     lo, hi = np.full(n, np.nan), np.full(n, np.nan)
-    failed = np.any(st_scan >= 2, axis=1)
-    captured = st_scan == 1
-    rebound = st_scan == 0
-    # the highest captured index with only rebounds above it
-    top = np.where(captured.any(axis=1), points - 1 - np.argmax(captured[:, ::-1], axis=1), -1)
-    none = ~captured.any(axis=1) & ~failed
-    all_cap = (top == points - 1) & ~failed
-    status[none], speed[none] = CaptureStatus.NONE_IN_RANGE, grid[none, 0]
-    status[all_cap], speed[all_cap] = CaptureStatus.ALL_CAPTURED, np.inf
-    status[failed] = CaptureStatus.FAILED
-    active = ~failed & ~none & ~all_cap
+    status, top = classify(st_scan)
+    none = status == CaptureStatus.NONE_IN_RANGE
+    all_cap = status == CaptureStatus.ALL_CAPTURED
+    speed[none], speed[all_cap] = grid[none, 0], np.inf
+    active = np.isin(status, (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE))
     idx = np.arange(n)
-    below = np.arange(points)[None, :] < top[:, None]
-    multiple = active & np.any(rebound & below, axis=1)
-    status[multiple] = CaptureStatus.MULTIPLE
 
     # bracket: a captured, b < c the next rebounds (c may be missing: NaN)
     t = np.clip(top, 0, points - 1)
@@ -373,6 +363,24 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
         lo[mask] = np.where(none[mask], 0.0, value[mask])
         hi[mask] = np.where(none[mask], value[mask], np.inf)
     return {"speed": speed, "status": status, "lo": lo, "hi": hi, "evaluations": evaluations}
+
+
+def classify(scan_status) -> tuple[np.ndarray, np.ndarray]:
+    """The rule of the module docstring on the simulator's statuses of the scan (lanes, points;
+    speeds increasing): ``(status, top)``, ``top`` the index of the highest captured speed
+    with only rebounds above it (-1 if none)."""
+    st = np.asarray(scan_status)
+    n, points = st.shape
+    failed = np.any(st >= 2, axis=1)
+    captured = st == 1
+    top = np.where(captured.any(axis=1), points - 1 - np.argmax(captured[:, ::-1], axis=1), -1)
+    below = np.arange(points)[None, :] < top[:, None]
+    status = np.full(n, CaptureStatus.THRESHOLD)
+    status[np.any((st == 0) & below, axis=1)] = CaptureStatus.MULTIPLE
+    status[top == -1] = CaptureStatus.NONE_IN_RANGE
+    status[top == points - 1] = CaptureStatus.ALL_CAPTURED
+    status[failed] = CaptureStatus.FAILED
+    return status, top
 
 
 def _secant(b, qb, c, qc):

@@ -188,7 +188,9 @@ def _cell(nodes, q):
     if nodes.size == 1:
         scale = max(1.0, abs(float(nodes[0])))
         return np.zeros(q.shape, int), np.zeros(q.shape), np.abs(q - nodes[0]) > 1e-9 * scale
-    lo_out, hi_out = q < nodes[0], q > nodes[-1]
+    # a query off an end by rounding only (e.g. an angle from atan2) is not clamped
+    slack = 1e-9 * max(1.0, float(nodes[-1] - nodes[0]))
+    lo_out, hi_out = q < nodes[0] - slack, q > nodes[-1] + slack
     qc = np.clip(q, nodes[0], nodes[-1])
     i = np.clip(np.searchsorted(nodes, qc, side="right") - 1, 0, nodes.size - 2)
     w = (qc - nodes[i]) / (nodes[i + 1] - nodes[i])

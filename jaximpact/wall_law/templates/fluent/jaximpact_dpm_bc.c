@@ -20,6 +20,8 @@ DEFINE_DPM_BC(jaximpact_wall_law_bc, tp, t, f, f_normal, dim)
     real vn = 0.0, vt = 0.0, ut[3] = {0.0, 0.0, 0.0}, nrm[3] = {0.0, 0.0, 0.0};
     double vn_out = 0.0, vt_out = 0.0, omega_out = 0.0, norm = 0.0;
     int i, code;
+    (void)t; /* the wall thread and face are not needed */
+    (void)f;
 
     /* f_normal: the face normal; orient it out of the domain (into the wall) so that the
        normal speed toward the wall is positive */

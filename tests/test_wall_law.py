@@ -1,0 +1,356 @@
+"""The wall law: tables against simulate, the generated C header (compiled by the system C
+compiler) against the tables and simulate, the Fluent UDF's logic, the files, the command.
+
+The default tests use tables of four (angle, spin) lanes, as tests/test_capture_speed.py's
+call does: every simulate call of both files runs one compiled program. The accuracy of the
+default grid (1e-3 in cor_n and cor_t) is the slow test at the end (and BENCHMARKS.md)."""
+
+import ctypes
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import jaximpact as ji
+from jaximpact.wall_law import (
+    compare_with_simulate,
+    random_points,
+    read_draws,
+    wall_law,
+    write_wall_law,
+)
+from jaximpact.wall_law._capture import scene_with
+
+ANGLES = (20.0, 60.0)
+SPINS = (-2e4, 2e4)
+RATIOS = 1.0 + np.sinh(np.linspace(0.0, np.arcsinh(np.sqrt(99.0)), 8)) ** 2
+GCC = shutil.which("gcc") or shutil.which("cc")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return ji.table1_scene()
+
+
+@pytest.fixture(scope="module")
+def law(scene):
+    return wall_law(scene, angle_deg=ANGLES, omega0=SPINS, speed_ratio=RATIOS, refine=False)
+
+
+def lanes(scene, n=4):
+    """The scene with per-lane parameter arrays (the call pattern of the wall law)."""
+    values = {k: np.full(n, float(v)) for k, v in ji.scene_parameters(scene).items()}
+    return scene_with(scene, values)
+
+
+def test_capture_node_and_statuses(law):
+    assert law.shape == (1, 2, 2, 8)
+    assert law.speed_axis == "capture_ratio"
+    assert np.all(law.capture_status == 0)
+    assert np.all(law.cor_n[..., 0] == 0.0)  # the capture speed itself
+    assert np.all(law.cor_n[..., 1:] > 0) and np.all(law.status == 0)
+    # capture depends on the normal speed only without spin; with spin it differs by angle
+    assert np.all(np.diff(law.speed[..., 0], axis=1) > 0)
+
+
+def test_table_reproduces_simulate_at_nodes_and_mirrored(law, scene):
+    """At the nodes the table is simulate's result, for both signs of the tangential speed
+    (the mirrored impact: negative angle and spin)."""
+    s4 = lanes(scene)
+    ang = np.repeat(np.asarray(ANGLES), 2)
+    spin = np.tile(np.asarray(SPINS), 2)
+    v_c = law.capture_speed[0].reshape(4)
+    for i in range(1, RATIOS.size):
+        speed = RATIOS[i] * v_c
+        th = np.radians(ang)
+        vn, vt = speed * np.cos(th), speed * np.sin(th)
+        for sign in (1.0, -1.0):
+            code, vn_out, vt_out, w_out = law.evaluate(law.radius[0], vn, sign * vt, sign * spin)
+            sim = ji.simulate(s4, speed, sign * ang, sign * spin)
+            assert np.all(code == 0)
+            np.testing.assert_allclose(vn_out, np.asarray(sim.vn_out), rtol=1e-8, atol=1e-12)
+            np.testing.assert_allclose(vt_out, np.asarray(sim.vt_out), rtol=1e-8, atol=1e-12)
+            np.testing.assert_allclose(w_out, np.asarray(sim.omega_out), rtol=1e-8, atol=1e-6)
+
+
+def test_capture_boundary_and_random_points(law, scene):
+    """Random points: statuses agree with simulate except within 0.1 % of the capture speed
+    (this coarse table's values between nodes are not accurate: two spins, two angles; the
+    default grid's accuracy is test_default_grid_accuracy)."""
+    pts = random_points(law, 24, seed=3, below=0.5)
+    results = []
+    for k in range(0, 24, 4):  # four lanes per call (one compiled program)
+        part = {key: v[k : k + 4] for key, v in pts.items()}
+        results.append(compare_with_simulate(law, scene, part))
+    agree = np.concatenate([r["status_agree"] | r["near_capture"] for r in results])
+    assert agree.all()
+    captured = np.concatenate([r["captured_table"] for r in results])
+    assert 0 < captured.sum() < captured.size  # both sides of the boundary were tried
+    err = np.concatenate([r["error"]["cor_n"] for r in results])
+    assert np.all(np.isfinite(err) == ~captured)  # a value wherever both rebound
+
+
+def compile_c(tmp_path, law, extra_source: str, name: str):
+    if GCC is None:
+        pytest.skip("no C compiler")
+    from jaximpact.wall_law import c_header
+
+    (tmp_path / "jaximpact_wall_law.h").write_text(c_header(law, "table1"))
+    src = tmp_path / f"{name}.c"
+    src.write_text(extra_source)
+    lib = tmp_path / f"lib{name}.so"
+    flags = ["-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror", "-shared", "-fPIC"]
+    subprocess.run(
+        [GCC, *flags, f"-I{tmp_path}", "-o", str(lib), str(src), "-lm"],
+        check=True,
+        capture_output=True,
+    )
+    return ctypes.CDLL(str(lib))
+
+
+SHIM = """#include "jaximpact_wall_law.h"
+int wall_law(double r, double vn, double vt, double w, double *a, double *b, double *c)
+{ return jaximpact_wall_law(r, vn, vt, w, a, b, c); }
+double capture(double r, double angle, double w) { return jaximpact_capture_speed(r, angle, w); }
+"""
+
+
+def c_wall_law(lib):
+    D, P = ctypes.c_double, ctypes.POINTER(ctypes.c_double)
+    lib.wall_law.argtypes = [D, D, D, D, P, P, P]
+    lib.wall_law.restype = ctypes.c_int
+
+    def evaluate(radius, vn, vt, omega):
+        args = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (radius, vn, vt, omega)))
+        out = np.zeros((4, args[0].size))
+        for i, (r, a, b, w) in enumerate(zip(*(x.ravel() for x in args), strict=True)):
+            x, y, z = D(), D(), D()
+            out[0, i] = lib.wall_law(r, a, b, w, x, y, z)
+            out[1:, i] = x.value, y.value, z.value
+        return out[0].astype(int), out[1], out[2], out[3]
+
+    return evaluate
+
+
+def test_c_header_compiles_and_matches_the_python_interpolation(law, tmp_path):
+    lib = compile_c(tmp_path, law, SHIM, "shim")
+    evaluate = c_wall_law(lib)
+    rng = np.random.default_rng(5)
+    n = 3000
+    # inside and outside the table (angles 0-90, spins beyond the grid, radii off the node,
+    # captures, negative tangential speeds) and invalid inputs
+    radius = np.where(rng.random(n) < 0.9, law.radius[0], law.radius[0] * 1.3)
+    vn = rng.uniform(0.01, 2.0, n)
+    vn[:5] = [0.0, -1.0, np.nan, 1.0, 1.0]
+    vt = rng.uniform(-3.0, 3.0, n)
+    vt[3] = np.inf
+    spin = rng.uniform(-3e4, 3e4, n)
+    got = evaluate(radius, vn, vt, spin)
+    want = law.evaluate(radius, vn, vt, spin)
+    np.testing.assert_array_equal(got[0], want[0])
+    for g, w in zip(got[1:], want[1:], strict=True):
+        np.testing.assert_allclose(g, w, rtol=1e-13, atol=1e-13)
+    codes = set(np.unique(want[0]))
+    assert {0, 1, 2, 3, 4} <= codes  # rebound, captured, clamped (both), invalid
+    lib.capture.argtypes = [ctypes.c_double] * 3
+    lib.capture.restype = ctypes.c_double
+    for j, a in enumerate(ANGLES):
+        for k, w in enumerate(SPINS):
+            assert lib.capture(law.radius[0], a, w) == pytest.approx(
+                law.capture_speed[0, j, k], rel=1e-13
+            )
+
+
+def test_c_header_against_simulate_on_random_points(law, scene, tmp_path):
+    evaluate = c_wall_law(compile_c(tmp_path, law, SHIM, "shim"))
+    pts = random_points(law, 12, seed=11, below=0.8)
+    for k in range(0, 12, 4):
+        part = {key: v[k : k + 4] for key, v in pts.items()}
+        c = compare_with_simulate(law, scene, part, evaluate=evaluate)
+        assert np.all(c["status_agree"] | c["near_capture"])
+        assert np.all(np.isfinite(c["error"]["cor_n"]) == ~c["captured_table"])
+
+
+FAKE_UDF_H = """/* the few Fluent names the UDF uses, for a compile-and-run check without Fluent */
+typedef double real;
+typedef struct { real vel[3]; real diam; } Tracked_Particle;
+#define TP_VEL(tp) ((tp)->vel)
+#define TP_DIAM(tp) ((tp)->diam)
+#define PATH_ACTIVE 0
+#define PATH_END 2
+#define DEFINE_DPM_BC(name, tp, t, f, f_normal, dim) \\
+    int name(Tracked_Particle *tp, void *t, int f, real *f_normal, int dim)
+#include <math.h>
+"""
+
+UDF_SHIM = """
+int bounce(double d, double *vel, double *normal)
+{
+    Tracked_Particle tp;
+    int i, code;
+    tp.diam = d;
+    for (i = 0; i < 3; i++) tp.vel[i] = vel[i];
+    code = jaximpact_wall_law_bc(&tp, 0, 0, normal, 3);
+    for (i = 0; i < 3; i++) vel[i] = tp.vel[i];
+    return code;
+}
+"""
+
+
+def test_fluent_udf_logic_with_a_stand_in_udf_h(law, tmp_path):
+    """The UDF compiled against a stand-in udf.h: its velocities are the wall law's for
+    either orientation of the face normal."""
+    from jaximpact.wall_law._codegen import _fill, _template
+
+    (tmp_path / "udf.h").write_text(FAKE_UDF_H)
+    udf = _fill(_template("fluent/jaximpact_dpm_bc.c"), {"VERSION": "x", "SCENE": "table1"})
+    lib = compile_c(tmp_path, law, udf + UDF_SHIM, "udf")
+    P = ctypes.POINTER(ctypes.c_double)
+    lib.bounce.argtypes = [ctypes.c_double, P, P]
+    rng = np.random.default_rng(2)
+    r = law.radius[0]
+    for _ in range(20):
+        vn, vt = rng.uniform(0.02, 2.0), rng.uniform(0.0, 2.0)
+        e_t = np.array([np.cos(a := rng.uniform(0, 6.28)), np.sin(a), 0.0])
+        v = vt * e_t + np.array([0.0, 0.0, -vn])  # toward the wall z = 0 (from z > 0)
+        code, vn_out, vt_out, _ = law.evaluate(r, vn, vt, 0.0)
+        want = vt_out * e_t + np.array([0.0, 0.0, vn_out])
+        for sign in (1.0, -1.0):
+            vel = (ctypes.c_double * 3)(*v)
+            normal = (ctypes.c_double * 3)(0.0, 0.0, 2.5 * sign)
+            got = lib.bounce(2 * r, vel, normal)
+            assert got == (2 if code & 1 else 0)
+            if not code & 1:
+                np.testing.assert_allclose(np.array(vel[:]), want, rtol=1e-12, atol=1e-14)
+
+
+def test_files_netcdf_parquet_and_code(law, tmp_path):
+    xr = pytest.importorskip("xarray")
+    import pyarrow.parquet as pq
+
+    write_wall_law(law, tmp_path, "table1")
+    ds = xr.open_dataset(tmp_path / "wall_law.nc")
+    assert tuple(ds["cor_n"].dims) == ("radius", "angle_deg", "omega0", "speed_ratio")
+    np.testing.assert_array_equal(ds["angle_deg"].values, ANGLES)
+    np.testing.assert_array_equal(ds["cor_n"].values, law.cor_n)
+    np.testing.assert_array_equal(ds["capture_speed"].values, law.capture_speed)
+    assert ds["capture_speed"].attrs["units"] == "m/s"
+    assert ds["omega0"].attrs["units"] == "rad/s"
+    assert ds.attrs["scene.contact.f0"] == 325.0
+    assert ds.attrs["speed_axis"] == "capture_ratio"
+    ds.close()
+    table = pq.read_table(tmp_path / "wall_law.parquet")
+    assert table.num_rows == law.cor_n.size
+    assert table.schema.field("speed").metadata[b"unit"] == b"m/s"
+    assert set(table.column("status").to_pylist()) == {"rebound"}
+    assert json.loads(table.schema.metadata[b"jaximpact.scene"])["contact.f0"] == 325.0
+    for name in (
+        "jaximpact_wall_law.h",
+        "openfoam/JaximpactWallLaw.C",
+        "openfoam/JaximpactWallLaw.H",
+        "openfoam/Make/files",
+        "openfoam/Make/options",
+        "openfoam/jaximpact_wall_law.h",
+        "fluent/jaximpact_dpm_bc.c",
+    ):
+        text = (tmp_path / name).read_text()
+        assert "@VERSION@" not in text and "@SCENE@" not in text
+    entry = (tmp_path / "openfoam/cloudProperties.jaximpact").read_text()
+    assert "patchInteractionModel jaximpactWallLaw;" in entry
+    assert 'TypeName("jaximpactWallLaw")' in (tmp_path / "openfoam/JaximpactWallLaw.H").read_text()
+    assert "libjaximpactWallLaw" in (tmp_path / "openfoam/Make/files").read_text()
+
+
+def test_posterior_draws_give_capture_probability_and_spread(scene, tmp_path):
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    f0 = np.array([[300.0, 350.0, 360.0]])  # (chain, draw)
+    ds = xr.Dataset(
+        {"f0": (("chain", "draw"), f0), "sigma_cor_n": (("chain", "draw"), np.ones((1, 3)))}
+    )
+    path = tmp_path / "draws.nc"
+    ds.to_netcdf(path, group="posterior", engine="h5netcdf")
+    draws = read_draws(path)
+    assert list(draws) == ["f0"]  # the noise factor is not a scene parameter
+    law = wall_law(
+        scene, angle_deg=ANGLES, omega0=SPINS, speed_ratio=RATIOS, refine=False, draws=draws
+    )
+    u = law.uncertainty
+    assert u["draws"] == 3
+    p = u["capture_probability"]
+    # at the capture speed of f0 = 325: captured with the larger f0 (2 of 3 draws), above
+    # it rebound with all of them (the capture speed grows with f0 by less than the table's
+    # first step)
+    np.testing.assert_allclose(p[..., 0], 2.0 / 3.0)
+    assert np.all(p[..., 2:] == 0.0)
+    assert np.all(u["cor_n_sd"][..., 2:] > 0)
+    lo, hi = u["cor_n_q05"][..., 2:], u["cor_n_q95"][..., 2:]
+    assert np.all((lo <= law.cor_n[..., 2:] + 1e-12) & (law.cor_n[..., 2:] <= hi + 1e-12))
+
+
+def cli(args, capsys):
+    from jaximpact.cli import main
+
+    code = main(args)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--angle", "95"], "--angle"),
+        (["--angle", "0:85"], "--angle"),
+        (["--speed", "0.5,2"], "--speed"),
+        (["--spin", "a"], "--spin"),
+        (["--radius", "-1"], "--radius"),
+        (["--draws", "missing.nc"], "missing.nc"),
+        (["no_such_scene.toml"], "no_such_scene.toml"),
+    ],
+)
+def test_command_bad_input_exits_2_with_one_line(args, words, tmp_path, capsys):
+    code, _, err = cli(["wall-law", *args, "-o", str(tmp_path / "out")], capsys)
+    assert code == 2
+    assert err.count("\n") == 1 and words in err and "Traceback" not in err
+
+
+def test_command_output_that_is_a_file(tmp_path, capsys):
+    target = tmp_path / "file"
+    target.write_text("x")
+    code, _, err = cli(["wall-law", "-o", str(target)], capsys)
+    assert code == 2 and str(target) in err
+
+
+def test_command_writes_the_files(tmp_path, capsys):
+    spins = ",".join(str(w) for w in SPINS)
+    code, out, _ = cli(
+        [
+            "wall-law",
+            "--angle",
+            ",".join(str(a) for a in ANGLES),
+            f"--spin={spins}",
+            "--speed",
+            ",".join(str(x) for x in RATIOS[1:]),
+            "--no-refine",
+            "--quiet",
+            "-o",
+            str(tmp_path / "wl"),
+        ],
+        capsys,
+    )
+    assert code == 0, out
+    assert "1 radius x 2 angle x 2 spin x 8 speed nodes" in out
+    for name in ("wall_law.nc", "wall_law.parquet", "jaximpact_wall_law.h", "openfoam", "fluent"):
+        assert (tmp_path / "wl" / name).exists()
+
+
+@pytest.mark.slow  # the default grid (about a minute) and 2,000 impacts
+def test_default_grid_accuracy(scene):
+    law = wall_law(scene)
+    c = compare_with_simulate(law, scene, random_points(law, 2000, seed=1))
+    assert not c["failed"].any()
+    assert np.all(c["status_agree"] | c["near_capture"])
+    assert np.nanmax(c["error"]["cor_n"]) < 1e-3
+    assert np.nanmax(c["error"]["cor_t"]) < 1e-3
