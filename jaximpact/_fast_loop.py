@@ -159,9 +159,7 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
                 event.root_finder.rtol,
                 event.root_finder.atol,
             )
-            y = jax.tree_util.tree_map(
-                lambda a, b: jnp.where(s["num_steps"] == 0, a, b), s["y"], y
-            )
+            y = jax.tree_util.tree_map(lambda a, b: jnp.where(s["num_steps"] == 0, a, b), s["y"], y)
             return t_event, y, RESULTS.where(found, result, RESULTS.nonlinear_divergence)
 
         tfinal, yfinal, result = jax.lax.cond(

@@ -276,7 +276,8 @@ class Solver(eqx.Module):
     - `rtol`, `atol`: adaptive-step tolerances; ``None`` picks them from the float precision.
     - `dt`: step of the fixed-step method, in units of the Hertz time ``n*/v_n``.
     - `slip_width`: width of the slip-sign regularization, as a fraction of the normal speed;
-      ``None``: 1e-3 in float64, 3e-3 in float32 (kept well above float32's rounding noise).
+      ``None``: 3e-4 in float64, 3e-3 in float32 (above float32's rounding noise), or
+      ``100 rtol`` where that is larger.
     - `ring_width`: width of the adhesion-ring separation switch, fraction of the normal speed
       (1e-8: its error is about ``ring_width / cor_n``, which near the capture speed was the
       largest error left at 1e-6; the ring law's slope is bounded, so a narrow switch costs no

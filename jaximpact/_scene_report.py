@@ -104,7 +104,7 @@ def scene_report(scene_arg=None) -> str:
     stiff = float(stiffness_estimate(params, speed, angle))
     lines.append("solver")
     if s.method == "auto":
-        width = default_slip_width(dtype, s.slip_width)
+        width = default_slip_width(dtype, s.slip_width, s.rtol)
         if chosen.method == "kvaerno5" and stiff <= s.stiffness_limit:
             why = f"slip_width {width:g} is below 30 rtol: the friction switch is stiff"
         elif chosen.method == "kvaerno5":
@@ -118,7 +118,7 @@ def scene_report(scene_arg=None) -> str:
         )
     lines.append(f"  rtol, atol          {chosen.rtol:g}, {chosen.atol:g}  ({dtype.name})")
     lines.append(f"  max_steps           {chosen.max_steps}")
-    lines.append(f"  slip_width          {default_slip_width(dtype, s.slip_width):g}")
+    lines.append(f"  slip_width          {default_slip_width(dtype, s.slip_width, s.rtol):g}")
     lines.append(f"  outputs             {s.outputs}")
 
     terms = required_terms(scene, params, angle, omega0)

@@ -14,7 +14,6 @@ from jax.custom_derivatives import SymbolicZero
 from . import _dynamics as dyn
 from . import _fast_loop
 from ._results import ImpactResult, Status
-from ._safe import smooth_sign_flat
 from ._scene import (
     INERTIA_FACTOR,
     Scene,
@@ -100,7 +99,7 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         adhesion=adhesion,
         rolling_moments=moments if rotation else "none",
         friction_load=m.friction_load,
-        slip_width=default_slip_width(jnp.result_type(float), s.slip_width),
+        slip_width=default_slip_width(jnp.result_type(float), s.slip_width, s.rtol),
         ring_width=s.ring_width,
         ledger=s.outputs == "full",
         contact_floor=CONTACT_FLOOR,
@@ -229,9 +228,15 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
     of the Hertz force, its damping, the ring adhesion and its (spin-free) damping. Near the
     capture speed adhesion dominates the load there and the sphere leaves slowly: ignoring this
     impulse left errors of up to ~5e-5 in ``vt_out/speed`` and ``omega_out r/speed`` (it grows
-    like ``floor^1.5 / cor_n``). The impulse slides the contact point (the regularized sign of
-    the slip, as in the ODE) and stops where the slip would reach zero; rolling moments are
-    left out (their share is ``O(floor^2.5)``, or ``O(lambda C_A w)`` times the friction's).
+    like ``floor^1.5 / cor_n``). The impulse is exact Coulomb friction, not regularized: it
+    opposes the slip and stops where the slip reaches zero, so a slip smaller than the shell's
+    impulse can remove is removed (as in the exact model, where an infinitesimal slip is gone
+    in an infinitesimal time). With the regularized sign instead, a slip inside the slip width
+    entered the ODE and relaxed there at the pull's finite rate while a rolling moment acted
+    on the lagging spin: at normal incidence without spin, derivatives with respect to the
+    angle were off by the moment's rate over the pull's (0.2-3 % on lambda-law scenes).
+    Rolling moments are left out (their share is ``O(floor^2.5)``, or ``O(lambda C_A w)``
+    times the friction's).
     Returns ``vt``, ``w`` after the shell and the friction loss there (which closes the ledger
     exactly: minus the change of tangential and rotational kinetic energy).
     """
@@ -251,8 +256,7 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
     w = y["w"] if terms.rotation else jnp.zeros_like(vt)
     m_eff = p.inertia / (p.inertia + p.radius**2) if terms.rotation else 1.0
     slip = vt - p.radius * w
-    bound = m_eff * jnp.abs(slip)  # the impulse that brings the slip to zero
-    dv = jnp.clip(-impulse * smooth_sign_flat(slip / terms.slip_width), -bound, bound)
+    dv = jnp.clip(-m_eff * slip, -impulse, impulse)  # -m_eff slip brings the slip to zero
     out = {"vt": vt + dv, "loss_friction": -dv * slip - 0.5 * dv * dv / m_eff}
     if terms.rotation:
         out["w"] = w - p.radius * dv / p.inertia
@@ -906,7 +910,7 @@ def integration_settings(scene, params, speed, angle_deg, dtype, method=None) ->
         method = "tsit5"
         # A slip width below the solver's noise (~rtol) lets the slip wander into the steep part
         # of the friction switch, which an explicit solver crosses only with tiny steps.
-        if default_slip_width(dtype, s.slip_width) < 30 * rtol:
+        if default_slip_width(dtype, s.slip_width, rtol) < 30 * rtol:
             method = "kvaerno5"
         elif _all(list(params.values()) + [speed, angle_deg], lambda v: True):
             if float(_stiffness_estimate_jit(params, speed, angle_deg)) > s.stiffness_limit:

@@ -58,11 +58,23 @@ def default_tolerances(dtype, rtol, atol):
     return (rtol or 1e-5), (atol or 1e-7)
 
 
-def default_slip_width(dtype, slip_width):
-    """Slip-sign regularization width: 1e-3 (float64) or 3e-3 (float32) unless given."""
+def default_slip_width(dtype, slip_width, rtol=None):
+    """Slip-sign regularization width (fraction of the normal speed) unless given.
+
+    float64: ``max(3e-4, 100 rtol)``; float32: ``max(3e-3, 100 rtol)``, whose rounding noise in
+    the slip would otherwise reach the steep part of the switch and cost many small steps.
+    The width sets the error of an impact that passes from sliding to rolling under a rolling
+    moment (about linear in the width: at 1e-3 derivatives up to 1.6e-3 off on lambda-law
+    scenes, at 3e-4 8e-4, for 5 % more steps; BENCHMARKS.md, "Derivatives"). Below ~3e-4 the
+    transition gets too sharp for the tangents at rtol 1e-10 (whose error the step-size control
+    does not see). ``100 rtol`` keeps the width well above the solver's noise at loose
+    tolerances (``auto`` turns implicit below ``30 rtol``).
+    """
     if slip_width is not None:
         return slip_width
-    return 1e-3 if jnp.finfo(dtype).bits >= 64 else 3e-3
+    rtol, _ = default_tolerances(dtype, rtol, None)
+    floor = 3e-4 if jnp.finfo(dtype).bits >= 64 else 3e-3
+    return max(floor, 100 * float(rtol))
 
 
 def make_solver(method: str, dtype, stages: str = "per_state"):

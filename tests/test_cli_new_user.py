@@ -756,6 +756,7 @@ def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monk
         ]
 
 
+@pytest.mark.slow  # a fit and a plot in a fresh process (~20 s): CI's second step
 def test_fit_plot_says_it_is_drawing(tmp_path):
     """Item 8: `--plot` spent seconds simulating the model in silence after the report; it now
     costs less (one compact simulate for the data and the curves) and says what it draws and

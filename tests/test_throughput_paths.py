@@ -95,6 +95,7 @@ def _assert_same(a, b):
         np.testing.assert_array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k)), k)
 
 
+@pytest.mark.slow  # compiles diffeqsolve's program: CI's second step
 def test_default_loop_is_bitwise_diffeqsolve(table1):
     """The default step loop for concrete inputs (``_fast_loop``'s lean loop): diffrax's
     arithmetic without its bookkeeping, the same bits (rebounds and a capture), chunked."""
@@ -173,6 +174,7 @@ def slow_impacts(n, seed=2026):
     return rng.uniform(0.02, 0.3, n), rng.uniform(-89.9, 89.9, n), rng.uniform(-2e4, 2e4, n)
 
 
+@pytest.mark.slow  # compiles four programs (~80 s on 2 cores): CI's second step
 def test_float32_pool_is_batch_independent(table1):
     """float32 runs its lanes as a pool (refilled as impacts finish, the last ones gathered in
     fewer lanes): an impact's bits do not depend on its batch, its place or the chunk size,
