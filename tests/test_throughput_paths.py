@@ -136,6 +136,7 @@ def test_lean_loop_float32_agrees_with_diffeqsolve_to_the_event_tolerance(table1
         np.testing.assert_allclose(a, b, rtol=2e-4, atol=2e-4 * scale, err_msg=k)
 
 
+@pytest.mark.slow  # compiles diffeqsolve's program: CI's second step
 def test_lean_loop_reports_the_step_limit_as_diffeqsolve(table1):
     """Failures too: impacts that run out of steps end ``max_steps`` with NaN outputs in both
     loops (same step counts), the others as before."""
