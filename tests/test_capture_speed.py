@@ -10,7 +10,7 @@ import pytest
 import jaximpact as ji
 from jaximpact import reference
 from jaximpact.wall_law import CaptureStatus
-from jaximpact.wall_law._capture import classify, scene_with
+from jaximpact.wall_law._capture import classify, next_capture, scene_with
 
 NAMES = ("radius", "density", "K", "f0", "C_A", "C_H", "friction")
 
@@ -98,12 +98,14 @@ def test_rule_for_scans_that_are_not_one_threshold():
     # speeds increase along each row: 0 rebound, 1 captured, 2+ failed
     scan = np.array(
         [
-            [1, 1, 1, 0, 0],  # one threshold
-            [1, 0, 1, 0, 0],  # a rebound below a captured band
-            [0, 0, 1, 1, 0],  # rebounds below the only band
-            [0, 0, 0, 0, 0],  # nothing captured in the scan
-            [1, 1, 1, 1, 1],  # everything captured
-            [1, 2, 0, 0, 0],  # a failure
+            [1, 1, 1, 0, 0, 0],  # one threshold
+            [1, 0, 1, 0, 0, 0],  # captured again above the lowest step
+            [0, 0, 1, 1, 0, 0],  # rebounds below the only captured band
+            [1, 1, 0, 0, 1, 1],  # captured again at high speed (overdamped)
+            [0, 0, 0, 0, 0, 0],  # nothing captured in the scan
+            [1, 1, 1, 1, 1, 1],  # everything captured
+            [0, 0, 1, 1, 1, 1],  # captured from some speed up: no captured-to-rebound step
+            [1, 2, 0, 0, 0, 0],  # a failure
         ]
     )
     status, top = classify(scan)
@@ -111,12 +113,16 @@ def test_rule_for_scans_that_are_not_one_threshold():
         CaptureStatus.THRESHOLD,
         CaptureStatus.MULTIPLE,
         CaptureStatus.MULTIPLE,
+        CaptureStatus.MULTIPLE,
         CaptureStatus.NONE_IN_RANGE,
+        CaptureStatus.ALL_CAPTURED,
         CaptureStatus.ALL_CAPTURED,
         CaptureStatus.FAILED,
     ]
-    # the returned speed is the upper end of the highest captured band
-    assert list(top[:3]) == [2, 2, 3]
+    # the speed is the lowest captured-to-rebound step; above it, where capture comes back
+    assert list(top[:4]) == [2, 0, 3, 1]
+    grid = np.broadcast_to(np.arange(6.0), scan.shape)
+    assert list(next_capture(scan, grid, top)[:4]) == [np.inf, 2.0, np.inf, 4.0]
 
 
 def test_traced_values_and_bad_inputs_are_refused():
@@ -155,4 +161,8 @@ def test_derivatives_match_central_differences_of_the_reference(angle, omega0):
     for name in names:
         want = central_difference(p, name, angle, omega0, v0)
         got = float(jac[name])
-        assert abs(got - want) <= 1e-3 * abs(want), (name, got, want)
+        # the oracle's resolution: the bisection's error (1e-10 of the speed at each end)
+        # over the step; it matters only for derivatives that are zero in all but name
+        # (friction with spin: d ln v_c / d ln friction ~ 3e-7)
+        noise = 1e-10 * v0 / (1e-3 * getattr(p, name))
+        assert abs(got - want) <= 1e-3 * abs(want) + noise, (name, got, want, noise)

@@ -17,9 +17,13 @@ Search
    ``v_a = sqrt(2 |V_min| / m)`` (``V_min = -(8/15) pi f0 sqrt(r) (2 pi f0 / K)^1.5``, the
    depth of the adhesive well of the normal potential), cut at the speed range's top
    (1000 m/s).
-2. Rule: the capture speed is the upper end of the highest captured band of the scan: every
-   scanned speed above it rebounds. One captured band starting at the lowest scanned speed is
-   status ``threshold``; any other pattern (rebounds below a captured band) is ``multiple``.
+2. Rule: the capture speed is the lowest speed at which the scan goes from captured to
+   rebound (the upper end of the lowest captured band that has a rebound right above it).
+   Captured at every scanned speed below it and rebound at every one above: status
+   ``threshold``. Any other pattern is ``multiple``: a rebound below it (a captured band
+   above rebounds at lower speeds) or a capture above it (capture again at high speed: with
+   large Hertz damping ``C_H v`` beyond about 1 the impact is overdamped and the sphere
+   sticks again); ``next_capture`` is then the lowest scanned speed above it that sticks.
 3. Root: secant steps on ``g`` through the two lowest rebound speeds of the bracket, kept inside
    it; a step that lands on a capture moves the captured end and the next step is taken just
    above it; bisection where the secant leaves the bracket. Converged when the bracket or the
@@ -70,12 +74,13 @@ class CaptureStatus:
     - ``THRESHOLD`` (0): captured below the speed, rebound above it, over the whole scan.
     - ``NO_ADHESION`` (1): the scene has no adhesion (``f0 = 0`` or ``model.adhesion =
       false``): nothing sticks, the speed is 0 (exactly, with zero derivatives).
-    - ``MULTIPLE`` (2): capture is not one threshold: some scanned speed below the returned
-      one rebounds. The speed is the upper end of the highest captured band (every faster
-      impact of the scan rebounds); the bands below it are not reported.
+    - ``MULTIPLE`` (2): capture is not one threshold in speed. The speed is the lowest at which
+      the scan goes from captured to rebound; a scanned speed below it rebounds, or one above
+      it (``CaptureSpeed.next_capture``, the lowest) is captured again.
     - ``NONE_IN_RANGE`` (3): every scanned speed rebounds: the capture speed, if any, lies
       below the scan (``speed`` is then the lowest scanned speed, an upper bound).
-    - ``ALL_CAPTURED`` (4): the fastest scanned speed is captured (``speed`` is ``inf``).
+    - ``ALL_CAPTURED`` (4): no captured speed of the scan has a rebound right above it (the
+      sphere sticks up to the top of the scan; ``speed`` is ``inf``).
     - ``FAILED`` (5): an impact of the scan or the root find failed (``speed`` is NaN).
     - ``NOT_CONVERGED`` (6): the root find used its iterations without reaching the tolerance
       (``speed`` is the best estimate).
@@ -106,13 +111,16 @@ class CaptureSpeed(eqx.Module):
       threshold).
     - `status`: :class:`CaptureStatus` codes (int).
     - `bracket`: ``(lo, hi)``, m/s: the fastest speed found captured and the slowest found
-      rebounding (equal to ``speed`` where there is no bracket).
+      rebounding below and above `speed` (for a lane without a root: the scan's ends).
+    - `next_capture`: m/s, the lowest scanned speed above `speed` at which the sphere sticks
+      again (status ``multiple``), else ``inf`` (resolution: the scan's step, a factor 2.15).
     - `evaluations`: impacts simulated per value (scan and root find).
     """
 
     speed: jax.Array
     status: jax.Array
     bracket: tuple
+    next_capture: jax.Array
     evaluations: int = eqx.field(static=True, default=0)
 
     @property
@@ -205,7 +213,7 @@ def capture_speed(
         out = _search(scene, names, values, a, w, adhesive, rtol, speed_range)
         evaluations.append(out["evaluations"])
         dtype = jnp.result_type(float)
-        fields = (out["speed"], out["status"].astype(float), out["lo"], out["hi"])
+        fields = (out["speed"], out["status"].astype(float), out["lo"], out["hi"], out["next"])
         return tuple(jnp.asarray(x, dtype) for x in fields)
 
     @jax.custom_jvp
@@ -222,15 +230,18 @@ def capture_speed(
             scene, names, values, angle, omega, v_c, status, dvalues, dangle, domega
         )
         zero = jnp.zeros_like(out[0])
-        return out, (dv, zero, zero, zero)
+        return out, (dv, zero, zero, zero, zero)
 
     dtype = jnp.result_type(float)
     values = tuple(jnp.asarray(params[k], dtype) for k in names)
-    speed, status, lo, hi = solve(values, jnp.asarray(angle_deg, dtype), jnp.asarray(omega0, dtype))
+    speed, status, lo, hi, again = solve(
+        values, jnp.asarray(angle_deg, dtype), jnp.asarray(omega0, dtype)
+    )
     return CaptureSpeed(
         speed=speed,
         status=jax.lax.stop_gradient(status).astype(int),
         bracket=(jax.lax.stop_gradient(lo), jax.lax.stop_gradient(hi)),
+        next_capture=jax.lax.stop_gradient(again),
         evaluations=int(evaluations[-1]) if evaluations else 0,
     )
 
@@ -253,7 +264,7 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> 
     size = angle.size
     speed = np.zeros(size)
     status = np.full(size, CaptureStatus.NO_ADHESION)
-    lo_out, hi_out = np.zeros(size), np.zeros(size)
+    lo_out, hi_out, again = np.zeros(size), np.zeros(size), np.full(size, np.inf)
     lanes = np.flatnonzero(params["f0"] > 0) if adhesive else np.array([], int)
     evaluations = 0
     if lanes.size:
@@ -261,6 +272,7 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> 
         res = _root(simulate, scene, sub, angle[lanes], omega[lanes], rtol, speed_range)
         speed[lanes], status[lanes] = res["speed"], res["status"]
         lo_out[lanes], hi_out[lanes] = res["lo"], res["hi"]
+        again[lanes] = res["next"]
         evaluations = res["evaluations"]
     reshape = lambda x: x.reshape(shape)  # noqa: E731
     return {
@@ -268,6 +280,7 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> 
         "status": reshape(status),
         "lo": reshape(lo_out),
         "hi": reshape(hi_out),
+        "next": reshape(again),
         "evaluations": evaluations,
     }
 
@@ -306,6 +319,7 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
     speed = np.full(n, np.nan)
     lo, hi = np.full(n, np.nan), np.full(n, np.nan)
     status, top = classify(st_scan)
+    again = next_capture(st_scan, grid, top)
     none = status == CaptureStatus.NONE_IN_RANGE
     all_cap = status == CaptureStatus.ALL_CAPTURED
     speed[none], speed[all_cap] = grid[none, 0], np.inf
@@ -321,7 +335,7 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
     gc = np.where(t + 2 < points, g_scan[idx, np.minimum(t + 2, points - 1)], np.nan)
     lefts = np.zeros(n, int)  # consecutive steps that landed on a capture
     done = ~active
-    estimate = np.where(active, b, np.nan)
+    estimate = np.where(active, b, grid[:, 0])  # finite: every lane is simulated each step
     for _ in range(MAX_ITERATIONS):
         if done.all():
             break
@@ -362,25 +376,45 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
     for mask, value in ((none, grid[:, 0]), (all_cap, grid[:, -1])):
         lo[mask] = np.where(none[mask], 0.0, value[mask])
         hi[mask] = np.where(none[mask], value[mask], np.inf)
-    return {"speed": speed, "status": status, "lo": lo, "hi": hi, "evaluations": evaluations}
+    return {
+        "speed": speed,
+        "status": status,
+        "lo": lo,
+        "hi": hi,
+        "next": again,
+        "evaluations": evaluations,
+    }
 
 
 def classify(scan_status) -> tuple[np.ndarray, np.ndarray]:
     """The rule of the module docstring on the simulator's statuses of the scan (lanes, points;
-    speeds increasing): ``(status, top)``, ``top`` the index of the highest captured speed
-    with only rebounds above it (-1 if none)."""
+    speeds increasing): ``(status, top)``, ``top`` the index of the captured speed of the
+    lowest captured-to-rebound step (-1 if none)."""
     st = np.asarray(scan_status)
     n, points = st.shape
     failed = np.any(st >= 2, axis=1)
-    captured = st == 1
-    top = np.where(captured.any(axis=1), points - 1 - np.argmax(captured[:, ::-1], axis=1), -1)
-    below = np.arange(points)[None, :] < top[:, None]
+    captured, rebound = st == 1, st == 0
+    step = captured[:, :-1] & rebound[:, 1:]
+    top = np.where(step.any(axis=1), np.argmax(step, axis=1), -1)
+    index = np.arange(points)[None, :]
+    below = index < top[:, None]
+    above = index > top[:, None] + 1
     status = np.full(n, CaptureStatus.THRESHOLD)
-    status[np.any((st == 0) & below, axis=1)] = CaptureStatus.MULTIPLE
-    status[top == -1] = CaptureStatus.NONE_IN_RANGE
-    status[top == points - 1] = CaptureStatus.ALL_CAPTURED
+    other = np.any(rebound & below, axis=1) | np.any(captured & above, axis=1)
+    status[other] = CaptureStatus.MULTIPLE
+    status[(top == -1) & captured.any(axis=1)] = CaptureStatus.ALL_CAPTURED
+    status[~captured.any(axis=1)] = CaptureStatus.NONE_IN_RANGE
     status[failed] = CaptureStatus.FAILED
     return status, top
+
+
+def next_capture(scan_status, grid, top) -> np.ndarray:
+    """The lowest scanned speed above the step ``top`` that is captured (inf if none)."""
+    st = np.asarray(scan_status)
+    index = np.arange(st.shape[1])[None, :]
+    again = (st == 1) & (index > np.asarray(top)[:, None] + 1) & (np.asarray(top)[:, None] >= 0)
+    first = np.argmax(again, axis=1)
+    return np.where(again.any(axis=1), grid[np.arange(st.shape[0]), first], np.inf)
 
 
 def _secant(b, qb, c, qc):

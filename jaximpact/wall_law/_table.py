@@ -473,8 +473,9 @@ class _Context:
             i, k = (int(j[0]) for j in np.nonzero(captured))
             raise WallLawError(
                 f"{int(captured.sum())} impacts above the capture speed were captured "
-                f"(capture is not one threshold there), e.g. speed ratio {x[k + first]:g}, "
-                f"angle {a[i]:g} deg, spin {w[i]:g} rad/s"
+                f"(capture is not one threshold there: the sphere sticks again at high speed), "
+                f"e.g. speed ratio {x[k + first]:g} ({speed[i, k + first]:.4g} m/s), angle "
+                f"{a[i]:g} deg, spin {w[i]:g} rad/s; keep the largest speed ratio below it"
             )
         if self.adhesive:  # the node at the capture speed itself (module docstring)
             u = np.arcsinh(np.sqrt(x - 1.0))
