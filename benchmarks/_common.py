@@ -3,6 +3,7 @@
 import datetime
 import os
 import platform
+import re
 import subprocess
 import tempfile
 import time
@@ -68,7 +69,7 @@ def as_dict(res):
 
 def output_errors(res, exact, speed, radius):
     """Per-impact errors of ``res`` against ``exact`` (dicts from :func:`as_dict` or
-    :func:`reference_rows`), scaled as in the simulator issue: ``|d cor_n|``,
+    :func:`reference_rows`), scaled by the impact: ``|d cor_n|``,
     ``|d vt_out|/speed``, ``|d omega_out| r/speed`` (impacts both call rebounds) and the relative
     contact time (impacts with equal status). NaN where not applicable. Also returns the number
     of status mismatches."""
@@ -126,6 +127,15 @@ def machine():
         commit = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
         ).stdout.strip()
+        # the measured code: uncommitted changes to the packages make the commit approximate
+        changed = subprocess.run(
+            ["git", "status", "--porcelain", "--", "jaximpact", "fitting"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
+        if changed:
+            commit += " with uncommitted changes"
     except OSError:
         commit = "?"
     return {
@@ -180,3 +190,93 @@ def fmt(x, spec=".1e"):
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return "–"
     return format(x, spec)
+
+
+def measured_line(info, command, settings=None, note=None):
+    """The line every generated section of BENCHMARKS.md starts with: the command that
+    reproduces it, then when, on which commit and machine, how loaded, with which versions;
+    ``settings``: the solver settings measured; ``note``: anything else about the run (e.g.
+    "another job ran on the same cores")."""
+    line = (
+        f"`{command}`. Measured {info['date']}, commit {info['commit']}, {info['cpu']}, "
+        f"{info['cores']} cores, {info['memory']}, load average {info['load']} at the start; "
+        f"Python {info['python']}, jax {info['jax']}, diffrax {info['diffrax']}, "
+        f"numpy {info['numpy']}, scipy {info['scipy']}."
+    )
+    if settings:
+        line += f" Settings: {settings}."
+    if note:
+        line += " " + note.strip().rstrip(".") + "."
+    return line + "\n"
+
+
+def default_settings():
+    """The simulator's default solver settings, as the library computes them (not copied)."""
+    import jax.numpy as jnp
+
+    import jaximpact as ji
+    from jaximpact._solvers import default_slip_width, default_tolerances
+
+    solver = ji.table1_scene().solver
+    parts = []
+    for name, dtype in (("float64", jnp.float64), ("float32", jnp.float32)):
+        rtol, atol = default_tolerances(dtype, solver.rtol, solver.atol)
+        try:
+            width = default_slip_width(dtype, solver.slip_width, rtol)
+        except TypeError:  # a version whose default width does not depend on rtol
+            width = default_slip_width(dtype, solver.slip_width)
+        parts.append(f"{name} rtol {rtol:g} / atol {atol:g}, slip_width {width:g}")
+    return (
+        f'`method = "{solver.method}"`; '
+        + "; ".join(parts)
+        + f"; ring_width {solver.ring_width:g}; max_steps {solver.max_steps}"
+    )
+
+
+def _heading(line):
+    """(level, title) of a Markdown ATX heading line, else None."""
+    m = re.match(r"^(#{1,6})\s+(.*?)\s*#*\s*$", line)
+    return (len(m.group(1)), m.group(2)) if m else None
+
+
+def replace_section(path, section):
+    """Put ``section`` (Markdown that starts with its heading line, e.g. ``## Fit time``) in
+    place of that section of ``path``: from the heading line to the next heading of the same
+    or a higher level (``## `` ends a ``### `` section too). HTML comments and blank lines
+    right before that next heading stay. The rest of the file is kept byte for byte; a
+    section the file lacks is appended. Written atomically (temporary file and rename)."""
+    path = Path(path)
+    first = section.lstrip("\n").split("\n", 1)[0]
+    head = _heading(first)
+    if head is None:
+        raise ValueError(f"a section starts with its heading line, got {first!r}")
+    level, title = head
+    body = section.strip("\n") + "\n"
+    lines = path.read_text(encoding="utf-8").splitlines(keepends=True) if path.exists() else []
+    start = next(
+        (i for i, x in enumerate(lines) if _heading(x.rstrip("\n")) == (level, title)), None
+    )
+    if start is None:
+        text = "".join(lines).rstrip("\n")
+        write_atomic(path, (text + "\n\n" if text else "") + body)
+        return False
+    end = next(
+        (
+            i
+            for i in range(start + 1, len(lines))
+            if (h := _heading(lines[i].rstrip("\n"))) and h[0] <= level
+        ),
+        len(lines),
+    )
+    keep = end  # trailing comments (markers such as <!-- ...: end -->) and blank lines stay
+    while keep > start + 1 and (
+        not lines[keep - 1].strip() or lines[keep - 1].lstrip().startswith("<!--")
+    ):
+        keep -= 1
+    tail = lines[keep:end]
+    if end < len(lines) and not any(x.strip() == "" for x in tail[-1:]):
+        tail.append("\n")  # a blank line before the next heading
+    gap = "\n" if tail and tail[0].strip() else ""
+    text = "".join(lines[:start]) + body + gap + "".join(tail) + "".join(lines[end:])
+    write_atomic(path, text)
+    return True

@@ -12,6 +12,7 @@ x d/dx, per radian, per speed/radius), with a floor of 1e-2 of the largest entry
 import math
 import sys
 import time
+from pathlib import Path
 
 import jax
 
@@ -36,6 +37,10 @@ def scaled(params, speed, values, out, c):
 
 
 def main(default_only=False):
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _common import machine
+
+    info = machine()
     params = ref.table1_params()
     base = ji.table1_scene()
     exact = []
@@ -63,8 +68,13 @@ def main(default_only=False):
         errors = np.array(errors)
         rows.append((rtol, width, errors.max(), np.median(errors), (errors > 1e-3).sum(),
                      errors.size, steps, seconds, program))  # fmt: skip
+    from _common import measured_line
+
+    command = "python benchmarks/derivative_accuracy.py" + (" --default" if default_only else "")
+    print("### Accuracy against finite differences\n")
+    print(measured_line(info, command))
     print("| rtol | slip_width | program | max error | median error | > 1e-3 | median steps "
-          "| jacfwd s |")  # fmt: skip
+          "| jacfwd s (incl. compile) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(

@@ -1,15 +1,18 @@
-"""float32 near capture (issue 12): failures and status disagreements with float64.
+"""float32 near capture: failures and status disagreements with float64.
 
-``python benchmarks/near_capture_band.py [--n 1000000] [--block 100000]``
+``python benchmarks/near_capture_band.py [--n 1000000] [--block 100000]`` prints BENCHMARKS.md's
+"float32 near capture" (under "Throughput"); ``--compare-loops`` prints its rate of the float32
+default against the same step loop without lane refill.
 
 Slow impacts on the Table 1 scene, where adhesion decides between rebound and capture: speeds
 uniform in 0.02-0.3 m/s, incidence -89.9..89.9 deg, spin uniform in +-2e4 rad/s (seed 2026).
 Each block is simulated in float32 and float64 (``ji.simulate``, default settings). Counts the
 impacts that fail in each precision, and for every impact whose float32 status differs from
 float64's, how far its speed is from float64's capture speed at that angle and spin (found by
-bisection in float64): the target is zero float32 failures, and equal statuses except within
+bisection in float64): expected are zero float32 failures, and equal statuses except within
 0.5 % of the capture speed. Prints markdown. ``--compare-loops``: the float32 rate of the
-default (pooled) loop against the chunked lean loop on 100,000 of these impacts.
+default (lanes refilled as impacts finish) against the same step loop without refill (a fixed
+number of lanes at a time) on 100,000 of these impacts.
 """
 
 import argparse
@@ -17,10 +20,13 @@ import time
 
 import jax
 import numpy as np
+from _common import default_settings, machine, measured_line
 
 jax.config.update("jax_enable_x64", True)
 
 import jaximpact as ji  # noqa: E402
+
+TITLE = "float32 near capture"
 
 
 def band(n, seed=2026):
@@ -47,6 +53,11 @@ def slowest_lane_factor(steps, lanes):
 
 
 def main(n, block):
+    info = machine()
+    command = "python benchmarks/near_capture_band.py"
+    command += (f" --n {n}" if n != 1_000_000 else "") + (
+        f" --block {block}" if block != 100_000 else ""
+    )
     scene = ji.table1_scene()
     speed, angle, omega0 = band(n)
     status, steps, seconds = {}, {}, {}
@@ -75,6 +86,8 @@ def main(n, block):
                 f"{(speed[i] / v_c[k] - 1) * 100:+.4f} % |"
             )
     within = sum(abs(float(r.split("|")[6].strip(" %+"))) <= 0.5 for r in rows)
+    print(f"### {TITLE}\n")
+    print(measured_line(info, command, settings=default_settings()))
     print(
         f"{n:,} impacts, 0.02-0.3 m/s, -89.9..89.9 deg, |omega0| <= 2e4 rad/s (seed 2026), "
         f"blocks of {block:,}: float64 {seconds[True]:.0f} s, float32 {seconds[False]:.0f} s.\n"
@@ -104,8 +117,11 @@ def main(n, block):
 
 
 def compare_loops(n, repeats=3):
-    """float32 rate of the default (pooled) loop against the chunked lean loop on the band."""
+    """float32 rate of the default (lanes refilled as impacts finish) against the same step
+    loop without refill (a fixed number of lanes at a time) on the band."""
     from jaximpact import _simulate as sim
+
+    info = machine()
 
     scene = ji.table1_scene()
     speed, angle, omega0 = band(n)
@@ -123,17 +139,30 @@ def compare_loops(n, repeats=3):
                 times.append(time.perf_counter() - t)
             rates[loop] = n / float(np.median(times))
     print(
+        measured_line(
+            info,
+            "python benchmarks/near_capture_band.py --compare-loops"
+            + (f" --n {n}" if n != 100_000 else ""),
+            settings=default_settings(),
+        )
+    )
+    print(
         f"float32, {n:,} band impacts, {len(jax.local_devices())} device(s), medians of "
-        f"{repeats}: chunked lean loop {rates['lean']:,.0f}/s, default (pooled) "
-        f"{rates[None]:,.0f}/s ({rates[None] / rates['lean']:.1f}x)"
+        f"{repeats}: the default (lanes refilled as impacts finish) {rates[None]:,.0f}/s, "
+        f"without refill (a fixed number of lanes at a time) {rates['lean']:,.0f}/s "
+        f"({rates[None] / rates['lean']:.1f}x)"
     )
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--block", type=int, default=100_000)
-    ap.add_argument("--compare-loops", action="store_true", help="pooled vs chunked, float32")
+    ap.add_argument(
+        "--compare-loops",
+        action="store_true",
+        help="float32: the default (lane refill) against the same loop without refill",
+    )
     args = ap.parse_args()
     if args.compare_loops:
         compare_loops(min(args.n, 100_000))

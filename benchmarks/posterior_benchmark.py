@@ -1,7 +1,7 @@
-"""Posterior and design (issue 11): sampling time, calibration coverage, design ratio.
+"""Posterior and design: sampling time, calibration coverage, design ratio.
 
 Run: ``python benchmarks/posterior_benchmark.py [--time] [--coverage N] [--design]
-[--warmup W] [--draws D] [--cache DIR]``; the full issue-11 run is ``--time --coverage 20
+[--warmup W] [--draws D] [--cache DIR]``; the full run is ``--time --coverage 20
 --design`` with the defaults W = D = 1000 (hours on 2 cores; see BENCHMARKS.md for what was
 actually run).
 

@@ -275,7 +275,14 @@ def run_case(case):
     )
 
 
-def run(quick=False):
+TITLE = "Stability catalogue"
+
+
+def run(quick=False, info=None, note=None, command="python benchmarks/run_all.py --only stability"):
+    """The section "Stability catalogue" of BENCHMARKS.md (from its heading), and the cases."""
+    from _common import default_settings, machine, measured_line
+
+    info = info or machine()
     rows, results = [], []
     for case in cases(quick):
         r = run_case(case)
@@ -307,8 +314,17 @@ def run(quick=False):
     finite = [r for r in defaults if np.isfinite(r["error"])]
     worst = max(finite, key=lambda r: r["error"]) if finite else None
     bad = [r["name"] for r in defaults if not (np.isfinite(r["error"]) and r["error"] < 1e-3)]
+    nonfinite = [r["name"] for r in results if r["status"] == "nonfinite"]
+    forced = [r for r in results if r["name"].startswith("tsit5 forced")]
     md = [
-        "## Stability catalogue\n",
+        f"## {TITLE}\n",
+        measured_line(
+            info,
+            command,
+            settings=default_settings(),
+            note=note,
+        ),
+        "Its fast cases are `tests/test_stability.py`. "
         "Table 1 scene (analytical moments unless stated), 1.66 m/s, +40 deg, 1e6 deg/s unless "
         'stated; default settings (`method="auto"`: Tsit5, or Kvaerno5 when the scene is '
         "estimated stiff or the slip width is below 30 rtol). *error*: max of the four scaled "
@@ -336,6 +352,28 @@ def run(quick=False):
         f"{len(defaults) - len(bad)}"
         + (f"; largest: {worst['name']} ({fmt(worst['error'])})" if worst else "")
         + (f"; failing: {', '.join(bad)}" if bad else "")
-        + ".\n",
+        + (
+            f". No case of the {len(results)} ended non-finite."
+            if not nonfinite
+            else f". **{len(nonfinite)} of the {len(results)} cases ended non-finite**: "
+            + ", ".join(nonfinite)
+            + "."
+        )
+        + (
+            " With the explicit solver forced on the stiff cases, "
+            + (
+                "each ends with a rebound, a capture or a clear `max_steps`: "
+                if all(r["status"] in ("rebound", "captured", "max_steps") for r in forced)
+                else "**not every case ends with a rebound, a capture or `max_steps`**: "
+            )
+            + "; ".join(
+                f"{r['name'].removeprefix('tsit5 forced: ')}: {r['status']}, {r['steps']} steps"
+                for r in forced
+            )
+            + "."
+            if forced
+            else ""
+        )
+        + "\n",
     ]
     return "\n".join(md) + "\n", results

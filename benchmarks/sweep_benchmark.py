@@ -1,7 +1,8 @@
 """Large-sweep benchmark: a 1,000,000-impact sweep end to end, and scaling over host devices.
 
 Run: ``python benchmarks/sweep_benchmark.py [--n 1000000] [--scaling-n 65536] [--repeats 3]``
-(about 5 minutes on 2 cores for the defaults). Prints a Markdown section for BENCHMARKS.md.
+(about 5 minutes on 2 cores for the defaults). Prints Markdown; ``--pipeline`` prints
+BENCHMARKS.md's "Large sweeps" section.
 
 * The big sweep runs the command line exactly as a user would (``jaximpact sweep`` on a Parquet
   impacts file, the embedded Table 1 scene, oblique spinning impacts, float64, chunks of 8192),
@@ -12,7 +13,7 @@ Run: ``python benchmarks/sweep_benchmark.py [--n 1000000] [--scaling-n 65536] [-
   then times ``run_sweep`` on ``--scaling-n`` impacts ``--repeats`` times (median), so the rate
   is the steady state without compilation. Forced host devices share the machine's cores, so
   little gain is expected beyond the core count.
-* ``--pipeline`` (issue 12): the sweep's marginal rate against ``simulate``'s on the same
+* ``--pipeline``: the sweep's marginal rate against ``simulate``'s on the same
   impacts, in one worker process per precision and device count: ``run_sweep`` on ``N`` and on
   ``2N`` impacts (``N`` = ``--pipeline-chunks`` chunks, so compilation and the first chunk's
   latency cancel in the difference) and ``simulate`` on the same ``N`` and ``2N`` impacts in
@@ -26,7 +27,6 @@ Run: ``python benchmarks/sweep_benchmark.py [--n 1000000] [--scaling-n 65536] [-
 import argparse
 import json
 import os
-import platform
 import re
 import resource
 import shutil
@@ -137,7 +137,9 @@ def scaling(work: Path, n: int, chunk: int, repeats: int) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------------------------
-# --pipeline (issue 12): the sweep's marginal rate against simulate's, and where its time goes
+# --pipeline: the sweep's marginal rate against simulate's, and where its time goes
+
+PIPELINE_CONFIGS = "float64:1,float64:2,float32:1,float32:2"
 
 # Functions of jaximpact.sweep timed by the phase profile (those present in the version run).
 PHASES = {
@@ -411,7 +413,7 @@ def main() -> None:
     parser.add_argument("--pipeline-chunks", type=int, default=4, help="N in chunks")
     parser.add_argument(
         "--pipeline-configs",
-        default="float64:1,float64:2,float32:1,float32:2",
+        default=PIPELINE_CONFIGS,
         help="precision:devices, comma-separated",
     )
     parser.add_argument("--pipeline-worker", action="store_true", help=argparse.SUPPRESS)
@@ -429,7 +431,7 @@ def main() -> None:
     if args.pipeline_report:
         report_from_output(args.pipeline_report, args.repeats)
         return
-    import jax
+    from _common import default_settings, machine, measured_line
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="sweep-bench-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -437,21 +439,40 @@ def main() -> None:
         configs = [
             (c.split(":")[0], int(c.split(":")[1])) for c in args.pipeline_configs.split(",")
         ]
-        print("## Sweep pipeline (issue 12)\n")
+        command = "python benchmarks/sweep_benchmark.py --pipeline"
+        if args.pipeline_configs != PIPELINE_CONFIGS:
+            command += f" --pipeline-configs {args.pipeline_configs}"
+        if args.chunk_size != 8192:
+            command += f" --chunk-size {args.chunk_size}"
+        if args.pipeline_chunks != 4:
+            command += f" --pipeline-chunks {args.pipeline_chunks}"
+        if args.repeats != 3:
+            command += f" --repeats {args.repeats}"
+        print("## Large sweeps\n")
+        print(measured_line(machine(), command, settings=default_settings()))
         print(
-            f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, jax {jax.__version__}; "
-            "embedded Table 1 scene, oblique spinning impacts (as below), default settings.\n"
+            "Embedded Table 1 scene, oblique spinning impacts (0.5-5 m/s, -60..60 deg, "
+            "|omega0| <= 2e4 rad/s): the sweep's marginal rate against `simulate`'s on the "
+            "same impacts.\n"
         )
         rows = pipeline(work, args.chunk_size, args.pipeline_chunks, args.repeats, configs)
         report_pipeline(rows, args.repeats)
         if not args.workdir:
             shutil.rmtree(work, ignore_errors=True)
         return
-    print("## Large sweeps (`jaximpact sweep`)\n")
+    print("### A sweep end to end, and over host devices\n")
     print(
-        f"Machine: {platform.machine()}, {os.cpu_count()} CPU cores, jax {jax.__version__}; "
-        "embedded Table 1 scene, oblique spinning impacts (0.5-5 m/s, -60..60 deg, "
-        "|omega0| <= 2e4 rad/s), float64.\n"
+        measured_line(
+            machine(),
+            "python benchmarks/sweep_benchmark.py"
+            + (f" --n {args.n}" if args.n != 1_000_000 else "")
+            + (f" --scaling-n {args.scaling_n}" if args.scaling_n != 65536 else ""),
+            settings=default_settings(),
+        )
+    )
+    print(
+        "`jaximpact sweep` on the embedded Table 1 scene, oblique spinning impacts "
+        "(0.5-5 m/s, -60..60 deg, |omega0| <= 2e4 rad/s), float64.\n"
     )
     if not args.skip_big:
         big = big_sweep(work, args.n, args.chunk_size)

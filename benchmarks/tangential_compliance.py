@@ -1,4 +1,4 @@
-"""Tangential compliance (issue 14): both models fitted to all the Kharaz data, side by side.
+"""Tangential compliance: both models fitted to all the Kharaz data, side by side.
 
 Run: ``python benchmarks/tangential_compliance.py`` (about 3 minutes on 2 cores).
 
@@ -10,8 +10,9 @@ Run: ``python benchmarks/tangential_compliance.py`` (about 3 minutes on 2 cores)
 - The cost of the option: a warm ``simulate`` of 200 impacts (3.9 m/s, 0.5-65 degrees) of each
   scene at the physical G*, median of 7 runs, and the mean step count.
 - The rigid model unchanged by the option: the outputs and step counts of 15 impacts of each
-  embedded rigid scene, against the same run of the commit before issue 14 when its source is
-  given (``--before DIR``, a checkout of ``jaximpact/`` from that commit): bitwise equality.
+  embedded rigid scene, against the same run of a version without the option when its source
+  is given (``--before DIR``, a checkout of ``jaximpact/`` from that version): bitwise
+  equality.
 """
 
 import argparse

@@ -11,7 +11,11 @@ exact reference's time history (``reference.impact_history``, dense output) and 
 
 A term whose impulse or energy share is far below the accuracy you need can be switched off
 (``model.rolling_moments = "none"``, ``model.adhesion = false``, ...). Run this file for the
-Table 1 scene's three paper impacts (1.66 m/s, 0 and +-40 deg, 1e6 deg/s).
+Table 1 scene's three paper impacts (1.66 m/s, 0 and +-40 deg, 1e6 deg/s) and what leaving
+terms out buys in impacts/s (``throughput.py``'s normal-impact configurations):
+``python benchmarks/term_contributions.py [--update BENCHMARKS.md]`` (``--update`` replaces
+only the "What a scene can leave out" section of that file). Also a section of ``run_all.py``
+(``terms``), which takes the impacts/s from its ``throughput`` section when both run.
 """
 
 import math
@@ -117,9 +121,44 @@ def markdown(rows):
     return "\n".join(out)
 
 
-def run(quick=False):
+TITLE = "What a scene can leave out"
+COMMAND = "python benchmarks/term_contributions.py"
+
+
+def savings(results, n):
+    """Markdown table: impacts/s of the normal-impact configurations at batch ``n`` (float64)
+    from ``throughput`` results, against the normal-only model."""
+    from _common import table
+    from throughput import KINDS, SAVINGS
+
+    pick = {r["kind"]: r for r in results if r["x64"] and r["n"] == n and r["kind"] in SAVINGS}
+    base = pick.get("normal")
+    rows = [
+        [
+            KINDS[k],
+            f"{pick[k]['rate']:,.0f}",
+            f"{pick[k]['run']:.3f}",
+            f"{pick[k]['steps_max']}",
+            f"{base['run'] / pick[k]['run']:.2f}" if base else "–",
+        ]
+        for k in SAVINGS
+        if k in pick
+    ]
+    return table(
+        ["impacts", "impacts/s", "run (s)", "max steps", "speed relative to the normal-only model"],
+        rows,
+    )
+
+
+def run(quick=False, info=None, note=None, command=COMMAND, throughput=None):
+    """The section "What a scene can leave out" of BENCHMARKS.md (from its heading), and the
+    impulses. ``throughput``: the data of ``throughput.run`` when it ran in the same process
+    (its normal-impact rows are reused); else those configurations are measured here."""
+    from _common import default_settings, machine, measured_line
+
     import jaximpact as ji
 
+    info = info or machine()
     rows = term_contributions(
         ref.table1_params(),
         ji.table1_scene(),
@@ -127,20 +166,52 @@ def run(quick=False):
         np.array([0.0, 40.0, -40.0]),
         math.radians(1e6),
     )
+    if throughput is None:
+        from throughput import SAVINGS, spawn
+
+        n = 1000 if quick else 10000
+        results = [r for k in SAVINGS for r in spawn(dict(kind=k, x64=True, sizes=[n]))]
+        where = "measured in the same run"
+    else:
+        results, n = throughput["results"], throughput["savings_n"]
+        where = 'from the same run as "By batch size and scene options"'
     md = [
-        "## What can this scene leave out\n",
-        "`python benchmarks/term_contributions.py` (function `term_contributions`): impulses "
-        "(time integrals of magnitudes, N s and N m s) over the contact from the exact "
-        "reference's dense history, for the Table 1 scene's three paper impacts.\n",
+        f"## {TITLE}\n",
+        measured_line(info, command, note=note),
+        "Impulses (time integrals of magnitudes, N s and N m s) over the contact from the exact "
+        "reference's dense history, for the Table 1 scene's three paper impacts (function "
+        "`term_contributions`).\n",
         markdown(rows),
+        "",
+        f"What leaving terms out buys (batch {n:,}, float64, {where}; default settings: "
+        f"{default_settings()}): a normal impact without spin compiles only the normal "
+        "states, and a scene without adhesion never evaluates the ring.\n",
+        savings(results, n),
         "",
     ]
     return "\n".join(md) + "\n", rows
 
 
 if __name__ == "__main__":
+    import argparse
+    from pathlib import Path
+
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
-    print(run()[0])
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _common import replace_section
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--update",
+        metavar="BENCHMARKS.md",
+        help=f"replace the {TITLE!r} section of this file",
+    )
+    ap.add_argument("--note", help="a sentence about the run for the measured line")
+    args = ap.parse_args()
+    text = run(note=args.note)[0]
+    print(text)
+    if args.update:
+        replace_section(Path(args.update), text)
+        print(f"replaced the section {TITLE!r} of {args.update}", file=sys.stderr)

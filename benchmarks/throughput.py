@@ -1,4 +1,15 @@
-"""Throughput: impacts per second against batch size, compile time, peak memory, scipy peer.
+"""Throughput: impacts/s by batch size, batch paths, lane-step cost, against a scipy loop.
+
+Impacts per second against batch size, compile time and peak memory; the batch paths side by
+side; where a lane-step's time goes; jaximpact against a scipy ``solve_ivp`` loop.
+
+Run (each prints the Markdown of its part of BENCHMARKS.md, "Throughput"):
+
+- ``python benchmarks/run_all.py --only throughput`` (``run``): "By batch size and scene
+  options", written into BENCHMARKS.md;
+- ``python benchmarks/throughput.py --paths``: "Default path and alternatives";
+- ``python benchmarks/throughput.py --profile``: "Where a lane-step's time goes";
+- ``python benchmarks/throughput.py --scipy-ratio``: "Compared with a scipy `solve_ivp` loop".
 
 Each configuration runs in a fresh subprocess (``python benchmarks/throughput.py --worker
 JSON``) so that its peak resident memory (``VmHWM`` in ``/proc/self/status``, which includes
@@ -154,69 +165,23 @@ def spawn(cfg, timeout=900):
     return rows
 
 
-def scipy_peer(quick, big):
-    """Per-impact time and error of the scipy loops against the exact reference, and of
-    jaximpact's default float64 batch on the same impacts."""
-    import jax
-    import scipy_peer as peer
-    from _common import as_dict, max_error, median_time, output_errors, reference_rows
-
-    import jaximpact as ji
-    from jaximpact import reference as ref
-
-    n = 10 if quick else 30
-    speed, angle, omega0 = impacts("full", n, seed=5)
-    params = ref.table1_params()
-    t = time.perf_counter()
-    exact = reference_rows(params, speed, angle, omega0)
-    rows = [
-        dict(
-            name="exact reference (switched, DOP853 rtol 1e-12)",
-            time=(time.perf_counter() - t) / n,
-            error=0.0,
-        )
-    ]
-    with jax.enable_x64(True):
-        res = as_dict(ji.simulate(ji.table1_scene(), speed, angle, omega0))
-    err, _ = output_errors(res, exact, speed, 35e-6)
-    jax_error = max_error(err)
-    # jaximpact's side of the ratio, timed right before and after the scipy loops (the machine
-    # is shared: its load changes between sections)
-    sp, an, om = impacts("full", big)
-    with jax.enable_x64(True):
-        scene = ji.table1_scene()
-        call = lambda: jax.block_until_ready(ji.simulate(scene, sp, an, om))  # noqa: E731
-        call()
-        jax_times = [median_time(call, 2)]
-    settings = [("RK45", 1e-6), ("RK45", 1e-7), ("RK45", 1e-8), ("LSODA", 1e-6), ("LSODA", 1e-7)]
-    settings += [("LSODA", 1e-8)]
-    for method, rtol in settings:
-        t = time.perf_counter()
-        out = peer.simulate_loop(
-            params, speed, angle, omega0, method=method, rtol=rtol, atol=rtol * 1e-2
-        )
-        dt = (time.perf_counter() - t) / n
-        e, bad = output_errors(out, exact, speed, 35e-6)
-        rows.append(
-            dict(
-                name=f"smooth model, solve_ivp {method} rtol {rtol:g}",
-                time=dt,
-                error=max_error(e),
-                mismatches=bad,
-            )
-        )
-    with jax.enable_x64(True):
-        jax_times.append(median_time(call, 2))
-    return rows, jax_error, big / float(np.median(jax_times))
+TITLE = "By batch size and scene options"
+SAVINGS = ("normal", "normal-forced-full", "normal-no-adhesion")
 
 
-def run(quick=False):
-    from _common import fmt, save_figure, table
+def run(
+    quick=False, info=None, note=None, command="python benchmarks/run_all.py --only throughput"
+):
+    """The subsection "By batch size and scene options" of BENCHMARKS.md's "Throughput" (from
+    its heading), and the measurements (``results``; ``savings_n``: the batch of the
+    scene-option rows that ``term_contributions`` reports)."""
+    from _common import machine
 
+    info = info or machine()
     if quick:
         plan = [dict(kind=k, x64=True, sizes=[1, 100, 1000]) for k in ("full", "normal")]
         plan += [dict(kind="full", x64=False, sizes=[1, 1000])]
-        plan += [dict(kind="full", x64=True, sizes=[10000], rhs=True)]
+        plan += [dict(kind="full", x64=True, sizes=[10000])]
         savings_n = 1000
     else:
         plan = []
@@ -224,30 +189,25 @@ def run(quick=False):
             for kind in ("full", "normal"):
                 plan.append(dict(kind=kind, x64=x64, sizes=[1, 10, 100, 1000]))
                 for n in (10000, 20000, 100000):
-                    plan.append(
-                        dict(kind=kind, x64=x64, sizes=[n], rhs=(kind == "full" and n == 20000))
-                    )
+                    plan.append(dict(kind=kind, x64=x64, sizes=[n]))
         savings_n = 10000
-    plan += [
-        dict(kind=k, x64=True, sizes=[savings_n])
-        for k in ("normal-forced-full", "normal-no-adhesion")
-    ]
+    plan += [dict(kind=k, x64=True, sizes=[savings_n]) for k in SAVINGS[1:]]
     big = 10000 if quick else 20000
     plan += [
         dict(kind=k, x64=x64, sizes=[big])
         for k in ("full-cores", "full-rebound", "full-rebound-cores")
         for x64 in (True, False)
     ]
-    if quick:
-        plan += [dict(kind="normal", x64=True, sizes=[savings_n])]
     results = []
     for cfg in plan:
         results += spawn(cfg)
-    peers, jax_error, jax_rate = scipy_peer(quick, 10000 if quick else 20000)
-    return report(results, peers, jax_error, jax_rate, savings_n, quick, save_figure, table, fmt)
+    text = report(results, info, command, note)
+    return text, dict(results=results, savings_n=savings_n)
 
 
-def report(results, peers, jax_error, jax_rate, savings_n, quick, save_figure, table, fmt):
+def report(results, info=None, command=None, note=None):
+    from _common import default_settings, measured_line, save_figure, table
+
     prec = lambda r: "float64" if r["x64"] else "float32"  # noqa: E731
     rows = [
         [
@@ -264,21 +224,25 @@ def report(results, peers, jax_error, jax_rate, savings_n, quick, save_figure, t
         ]
         for r in results
     ]
-    pick = lambda kind, x64, n: next(  # noqa: E731
-        (r for r in results if r["kind"] == kind and r["x64"] == x64 and r["n"] == n), None
-    )
-    big = 20000 if not quick else 10000
-    head = {x64: pick("full", x64, big) for x64 in (True, False)}
-    md = [
-        "## Throughput\n",
+    comp = [r["compile"] for r in results]
+    md = [f"### {TITLE}\n"]
+    if info:
+        md.append(measured_line(info, command, settings=default_settings(), note=note))
+    md.append(
         "Impacts: "
         + "; ".join(f"*{v}*" for v in KINDS.values())
-        + ". Full scene: 0.5-5 m/s, -60..60 deg, |omega0| <= 2e4 rad/s. Default settings "
-        "(Tsit5, rtol 1e-8/atol 1e-10 in float64, 1e-5/1e-7 in float32). One process per "
+        + ". Full scene: 0.5-5 m/s, -60..60 deg, |omega0| <= 2e4 rad/s. One process per "
         "configuration (batches <= 1000 share one, in increasing size); *peak MB*: VmHWM of "
         "that process (includes the Python/JAX runtime, ~300 MB). Median of repeated calls "
-        "after compilation.\n",
-    ]
+        "after compilation."
+        + (
+            " Compile time of `simulate` (first call minus a second): median "
+            f"{np.median(comp):.1f} s, range {min(comp):.1f}-{max(comp):.1f} s over these "
+            "configurations.\n"
+            if comp
+            else "\n"
+        )
+    )
     fig = plot(results)
     md.append(f"![throughput]({save_figure(fig, 'throughput')})\n")
     md.append(
@@ -298,91 +262,7 @@ def report(results, peers, jax_error, jax_rate, savings_n, quick, save_figure, t
             rows,
         )
     )
-    md.append("\n### Per-step cost (full scene, float64)\n")
-    h = head[True]
-    if h is not None:
-        lane_steps = h["n"] * h["steps_max"]
-        per = h["run"] / lane_steps
-        line = (
-            f"Batch {h['n']}: {h['rate']:,.0f} impacts/s; median {h['steps_median']:.0f} "
-            f"steps per impact but the vmapped loop runs every lane for the slowest lane's "
-            f"{h['steps_max']} steps: {per * 1e9:.0f} ns per lane-step "
-            f"({h['run'] / (h['n'] * h['steps_median']) * 1e9:.0f} ns per useful step)."
-        )
-        if "rhs" in h:
-            line += (
-                f" The bare right-hand side, evaluated 6 times per lane-step as Tsit5 does,"
-                f" takes {h['rhs']:.2f} s of the {h['run']:.2f} s "
-                f"({h['rhs'] / h['run']:.0%}); the rest is the solver's step loop "
-                "(stages, error norm, controller, event checks, masked state updates)."
-            )
-        md.append(line + "\n")
-    md.append("### Leaving out what a scene does not need\n")
-    sav = [
-        (k, pick(k, True, savings_n))
-        for k in ("normal", "normal-forced-full", "normal-no-adhesion")
-    ]
-    base = sav[0][1]
-    srows = [
-        [
-            KINDS[k],
-            f"{r['rate']:,.0f}",
-            f"{r['run']:.3f}",
-            f"{r['steps_max']}",
-            f"{base['run'] / r['run']:.2f}" if base else "–",
-        ]
-        for k, r in sav
-        if r is not None
-    ]
-    md.append(f"Batch {savings_n}, float64.\n")
-    md.append(
-        table(
-            [
-                "impacts",
-                "impacts/s",
-                "run (s)",
-                "max steps",
-                "speed relative to the normal-only model",
-            ],
-            srows,
-        )
-    )
-    md.append("\n### scipy `solve_ivp` in a loop (measured in the same run)\n")
-    one = pick("full", True, 1)
-    prow = [
-        [
-            p["name"],
-            f"{p['time'] * 1e3:.1f}",
-            fmt(p["error"]),
-            p.get("mismatches", 0),
-            f"{p['time'] * jax_rate:,.0f}",
-            f"{p['time'] / one['run']:.1f}" if one else "–",
-        ]
-        for p in peers
-    ]
-    md.append(
-        f"Same oblique spinning impacts, float64. jaximpact default error on them: "
-        f"{fmt(jax_error)} (max scaled error against the exact reference). "
-        f"Ratio = scipy time per impact x jaximpact impacts/s at batch {big} "
-        f"({jax_rate:,.0f}/s, float64, timed in the same process right before and after the "
-        "scipy loops), and against one jaximpact call per impact (batch 1).\n"
-    )
-    md.append(
-        table(
-            [
-                "peer",
-                "ms/impact",
-                "max error",
-                "status mismatches",
-                f"jaximpact speed-up (batch {big})",
-                "speed-up (batch 1)",
-            ],
-            prow,
-        )
-    )
-    return "\n".join(md) + "\n", dict(
-        results=results, peers=peers, jax_error=jax_error, jax_rate=jax_rate
-    )
+    return "\n".join(md) + "\n"
 
 
 def plot(results):
@@ -411,23 +291,17 @@ def plot(results):
     return fig
 
 
-# Issue 12: the batch paths of one configuration, timed in the same process with interleaved
-# repeats (the machine is shared: ratios are measured side by side, not across runs).
+# The batch paths of one configuration, timed in the same process with interleaved repeats
+# (the machine is shared: ratios are measured side by side, not across runs). ``loop``: the
+# private step-loop setting of ``jaximpact._simulate._simulate``.
 PATHS = {
     "plain": (
-        "plain vmapped `diffeqsolve` (the whole batch in one)",
+        "`diffeqsolve` vmapped over the whole batch (plain)",
         dict(chunk=0, loop="diffrax"),
     ),
-    "chunked": (
-        "chunked `diffeqsolve` (float64 8192 lanes on one device, 2048 per device; float32 "
-        "twice as many)",
-        dict(loop="diffrax"),
-    ),
-    "lean": ("chunked lean step loop", dict(loop="lean")),
-    "default": (
-        "default (concrete inputs): float64 the chunked lean loop, float32 the pooled lean loop",
-        {},
-    ),
+    "chunked": ("`diffeqsolve`, a fixed number of lanes at a time", dict(loop="diffrax")),
+    "lean": ("jaximpact's step loop, a fixed number of lanes at a time", dict(loop="lean")),
+    "default": ("**default** (`simulate`)", {}),
 }
 
 
@@ -493,10 +367,10 @@ def paths_spawn(cfg, devices=1, timeout=1800):
     return [json.loads(x[7:]) for x in proc.stdout.splitlines() if x.startswith("RESULT ")]
 
 
-def issue12(n=20000, repeats=3, scan=(0, 512, 1024, 2048, 4096, 8192)):
-    """Markdown of the issue-12 measurements: the paths per precision and device count, and
-    the chunk-size scan (float64, one device)."""
-    from _common import table
+def paths(n=20000, repeats=3, scan=(0, 512, 1024, 2048, 4096, 8192)):
+    """Markdown of "Default path and alternatives": the batch paths per precision and device
+    count, and the scan of lanes per device at a time (float64, one device)."""
+    from _common import default_settings, machine, measured_line, table
 
     rows = []
     for x64 in (True, False):
@@ -533,11 +407,22 @@ def issue12(n=20000, repeats=3, scan=(0, 512, 1024, 2048, 4096, 8192)):
         for r in scan_res
     ]
     md = [
-        f"Batch {n}, oblique spinning Table 1 impacts (as above), default settings (float64: "
-        "rtol 1e-10, atol 1e-12). Medians of "
-        f"{repeats} interleaved repeats per configuration, one process per precision and "
-        "device count; *vs plain*: the plain vmapped `diffeqsolve` timed in the same process; "
-        "*bitwise*: status, steps and outputs identical to the first row of the process.\n",
+        "### Default path and alternatives\n",
+        measured_line(
+            machine(),
+            "python benchmarks/throughput.py --paths"
+            + (f" --n {n}" if n != 20000 else "")
+            + (f" --repeats {repeats}" if repeats != 3 else ""),
+            settings=default_settings(),
+        ),
+        f"Batch of {n:,} oblique spinning impacts on the Table 1 scene (0.5-5 m/s, -60..60 deg, "
+        f"|omega0| <= 2e4 rad/s), full outputs. Medians of {repeats} interleaved repeats per "
+        "configuration, one process per precision and device count (several devices: one XLA "
+        "host device per core, as `ji.use_all_cpu_cores()` and the CLI do). *vs plain*: "
+        "against diffrax's `diffeqsolve` vmapped over the whole batch, timed in the same "
+        "process; *bitwise*: status, steps and outputs identical to the first row of the "
+        "process. The rows other than **default** are for comparison; `simulate` always takes "
+        "the default path for concrete inputs.\n",
         table(
             [
                 "precision",
@@ -553,7 +438,8 @@ def issue12(n=20000, repeats=3, scan=(0, 512, 1024, 2048, 4096, 8192)):
             ],
             rows,
         ),
-        "\nChunk size (lanes per device at a time; the default loop, float64, one device):\n",
+        "\nLanes per device at a time (an internal setting, not an option of `simulate`; "
+        "default path, float64, one device):\n",
         table(
             ["chunk", "impacts/s", "run (s)", "vs whole batch", "impacts per CPU-s", "bitwise"],
             scan_rows,
@@ -629,8 +515,11 @@ def scipy_ratio_worker(cfg):
 
 
 def scipy_ratio(n=20000, n_scipy=30):
-    """Markdown: jaximpact (all cores) against scipy loops, at equal accuracy, one process."""
-    from _common import table
+    """Markdown of "Compared with a scipy `solve_ivp` loop": jaximpact (all cores) against
+    scipy loops, at equal accuracy, one process."""
+    from _common import default_settings, machine, measured_line, table
+
+    info = machine()
 
     cmd = [sys.executable, str(HERE / "throughput.py"), "--scipy-ratio-worker"]
     cmd.append(json.dumps(dict(n=n, n_scipy=n_scipy)))
@@ -677,6 +566,12 @@ def scipy_ratio(n=20000, n_scipy=30):
         f"{best['wall'] / r['jax_wall']:,.0f}x slower in wall time."
     )
     md = [
+        "### Compared with a scipy `solve_ivp` loop\n",
+        measured_line(
+            info,
+            "python benchmarks/throughput.py --scipy-ratio" + (f" --n {n}" if n != 20000 else ""),
+            settings=default_settings(),
+        ),
         f"Errors: largest of `cor_n`, `vt_out`/speed, `omega_out` r/speed against the exact "
         f"reference on {n_scipy} oblique spinning Table 1 impacts (seed 5); the peer integrates "
         "the same smooth model (same slip and ring widths). Times per impact; jaximpact timed "
@@ -714,8 +609,11 @@ def profile_worker(cfg):
 
 
 def profile(lanes=8192, repeats=5):
-    """Markdown: ns per lane-step of the lean loop, diffeqsolve and the bare vector field."""
-    from _common import table
+    """Markdown of "Where a lane-step's time goes": ns per lane-step of jaximpact's step loop,
+    of ``diffeqsolve`` and of the bare vector field."""
+    from _common import default_settings, machine, measured_line, table
+
+    info = machine()
 
     rows = []
     for x64 in (True, False):
@@ -741,18 +639,21 @@ def profile(lanes=8192, repeats=5):
             ]
         )
     md = [
+        "### Where a lane-step's time goes\n",
+        measured_line(info, "python benchmarks/throughput.py --profile", default_settings()),
         f"One chunk of {lanes} oblique spinning Table 1 impacts on one device (default "
         "settings), medians of "
         f"{repeats}; ns per lane-step = time / (lanes x the chunk's largest step count). "
-        "*vector field*: the bare vmapped `ImpactField`, evaluated 6 times per lane-step as "
-        "Tsit5 does; *rest*: the lean loop less that (stage sums, error norm, controller, event "
-        "test, masked updates); *slowest-lane factor*: lane-steps run over lane-steps needed "
+        "*vector field*: the bare vmapped vector field, evaluated 6 times per lane-step as "
+        "Tsit5 does; *rest*: jaximpact's step loop less that (stage sums, error norm, "
+        "controller, event test, masked updates); *slowest-lane factor*: lane-steps run over "
+        "lane-steps needed "
         "(what refilling finished lanes could save at most).\n",
         table(
             [
                 "precision",
                 "`diffeqsolve` ns/lane-step",
-                "lean loop ns/lane-step",
+                "jaximpact step loop ns/lane-step",
                 "vector field (6 evaluations)",
                 "rest",
                 "steps max / mean",
@@ -765,15 +666,19 @@ def profile(lanes=8192, repeats=5):
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--worker")
-    ap.add_argument("--paths-worker")
-    ap.add_argument("--issue12", action="store_true", help="print the issue-12 tables")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--worker", help=argparse.SUPPRESS)
+    ap.add_argument("--paths-worker", help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--paths",
+        action="store_true",
+        help='the default batch path against the alternatives ("Default path and alternatives")',
+    )
     ap.add_argument("--scipy-ratio", action="store_true", help="jaximpact vs scipy loops")
-    ap.add_argument("--scipy-ratio-worker")
+    ap.add_argument("--scipy-ratio-worker", help=argparse.SUPPRESS)
     ap.add_argument("--profile", action="store_true", help="where a lane-step's time goes")
-    ap.add_argument("--profile-worker")
-    ap.add_argument("--n", type=int, default=20000)
+    ap.add_argument("--profile-worker", help=argparse.SUPPRESS)
+    ap.add_argument("--n", type=int, default=20000, help="batch size")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     if args.worker:
@@ -788,7 +693,7 @@ if __name__ == "__main__":
         scipy_ratio_worker(json.loads(args.scipy_ratio_worker))
     elif args.scipy_ratio:
         print(scipy_ratio(args.n)[0])
-    elif args.issue12:
-        print(issue12(args.n, args.repeats)[0])
+    elif args.paths:
+        print(paths(args.n, args.repeats)[0])
     else:
-        ap.error("give --issue12 (or --worker/--paths-worker JSON, used internally)")
+        ap.error("give --paths, --profile or --scipy-ratio")
