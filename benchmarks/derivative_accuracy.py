@@ -17,11 +17,13 @@ from pathlib import Path
 import jax
 
 jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 from jaximpact import reference as ref  # noqa: E402
 from jaximpact._sensitivity import INPUTS, OUTPUTS  # noqa: E402
+from jaximpact._solvers import default_slip_width, default_tolerances  # noqa: E402
 
 IMPACTS = [(1.0, 30.0, 0.0), (1.5, 0.0, 12000.0), (0.3, -50.0, 3000.0), (5.0, 70.0, -20000.0),
            (2.0, 0.0, 0.0), (0.8, 10.0, 0.0)]  # fmt: skip
@@ -47,11 +49,14 @@ def main(default_only=False):
     for v, a, w in IMPACTS:
         exact.append(ref.output_derivatives(params, v, a, w, inputs=INPUTS_USED)[0])
     rows = []
-    settings = [(r, w, "throughput") for r in (1e-8, 1e-9, 1e-10, 1e-11) for w in (1e-3, 3e-3)]
-    if default_only:
-        settings = [(1e-10, 1e-3, "throughput"), (1e-10, 1e-3, "compact")]
+    settings = [(r, w, "throughput") for r in (1e-8, 1e-9, 1e-10, 1e-11) for w in (3e-4, 1e-3)]
+    if default_only:  # the library's defaults (rtol 1e-10, its slip width)
+        settings = [(None, None, "throughput"), (None, None, "compact")]
     for rtol, width, program in settings:
-        scene = base.replace(solver={"rtol": rtol, "atol": rtol / 100, "slip_width": width})
+        solver = {"rtol": rtol, "atol": rtol / 100, "slip_width": width} if rtol else {}
+        scene = base.replace(solver=solver)
+        rtol = rtol or default_tolerances(jnp.float64, None, None)[0]
+        width = width or default_slip_width(jnp.float64, None, rtol)
         sp, an, om = (np.array(c) for c in zip(*IMPACTS, strict=True))
         t = time.perf_counter()
         jac = ji.output_jacobian(scene, sp, an, om, inputs=INPUTS_USED, program=program)
