@@ -215,7 +215,7 @@ def default_settings():
     import jax.numpy as jnp
 
     import jaximpact as ji
-    from jaximpact._solvers import default_slip_width, default_tolerances
+    from jaximpact._engine.solvers import default_slip_width, default_tolerances
 
     solver = ji.table1_scene().solver
     parts = []

@@ -22,8 +22,8 @@ import numpy as np  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 from jaximpact import reference as ref  # noqa: E402
-from jaximpact._sensitivity import INPUTS, OUTPUTS  # noqa: E402
-from jaximpact._solvers import default_slip_width, default_tolerances  # noqa: E402
+from jaximpact._engine.sensitivity import INPUTS, OUTPUTS  # noqa: E402
+from jaximpact._engine.solvers import default_slip_width, default_tolerances  # noqa: E402
 
 IMPACTS = [(1.0, 30.0, 0.0), (1.5, 0.0, 12000.0), (0.3, -50.0, 3000.0), (5.0, 70.0, -20000.0),
            (2.0, 0.0, 0.0), (0.8, 10.0, 0.0)]  # fmt: skip

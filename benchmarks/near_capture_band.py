@@ -119,7 +119,7 @@ def main(n, block):
 def compare_loops(n, repeats=3):
     """float32 rate of the default (lanes refilled as impacts finish) against the same step
     loop without refill (a fixed number of lanes at a time) on the band."""
-    from jaximpact import _simulate as sim
+    from jaximpact._engine import simulate as sim
 
     info = machine()
 

@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 from jaximpact import reference as ref  # noqa: E402
-from jaximpact._solvers import default_slip_width  # noqa: E402
+from jaximpact._engine.solvers import default_slip_width  # noqa: E402
 
 INPUTS = ("f0", "C_A", "C_H", "friction", "lambda", "speed", "angle_deg", "omega0")
 OUTPUTS = ("cor_n", "vt_out", "omega_out")

@@ -1,6 +1,6 @@
 """The peer a user would otherwise write: the same smooth model in numpy, ``solve_ivp`` in a loop.
 
-The right-hand side is a plain-Python transcription of ``jaximpact/_laws.py`` and
+The right-hand side is a plain-Python transcription of ``jaximpact/_model/laws.py`` and
 ``_dynamics.py`` (Hertz units, the same regularized friction and adhesion ring), integrated with
 ``scipy.integrate.solve_ivp`` (RK45 or LSODA) and terminal events for separation and capture.
 Only the four motion states are integrated (no energy ledger), which favours the peer.

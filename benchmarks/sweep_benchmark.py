@@ -141,7 +141,7 @@ def scaling(work: Path, n: int, chunk: int, repeats: int) -> list[dict]:
 
 PIPELINE_CONFIGS = "float64:1,float64:2,float32:1,float32:2"
 
-# Functions of jaximpact.sweep timed by the phase profile (those present in the version run).
+# Functions of jaximpact.sweep's modules timed by the phase profile (those in the version run).
 PHASES = {
     "_model_config": "setup: model terms, solver choice (stiffness scan of all impacts)",
     "_chunk_inputs": "inputs: rows, padding, parameters (host)",
@@ -189,13 +189,20 @@ class PhaseTimer:
 
         return timed
 
-    def install(self, module):
-        """Wrap ``module``'s functions named in PHASES, and the runner's compiled function."""
-        for name in PHASES:
-            owner, _, attribute = name.rpartition(".")
-            owner = getattr(module, owner, None) if owner else module
-            if callable(getattr(owner, attribute, None)) and name != "dispatch":
-                setattr(owner, attribute, self.wrap(name, getattr(owner, attribute)))
+    def install(self, *modules):
+        """Wrap the functions named in PHASES in each of ``modules`` (where the sweep calls
+        them; a class's method once), and the runner's compiled function (the first module's)."""
+        done = set()
+        for module in modules:
+            for name in PHASES:
+                owner, _, attribute = name.rpartition(".")
+                owner = getattr(module, owner, None) if owner else module
+                if (id(owner), attribute) in done:
+                    continue
+                if callable(getattr(owner, attribute, None)) and name != "dispatch":
+                    setattr(owner, attribute, self.wrap(name, getattr(owner, attribute)))
+                    done.add((id(owner), attribute))
+        module = modules[0]
         runner = module._runner
 
         def wrapped_runner(*args, **kwargs):
@@ -272,7 +279,7 @@ def pipeline_worker(args) -> None:
             cpu[name].append(c)
 
     timer = PhaseTimer()
-    timer.install(sweep)
+    timer.install(sweep._run, sweep._chunks, sweep._writer, sweep._store)
     profiled = run_sweep(sources["2n"], "profile")[0]
     got = sweep.read_sweep_columns(work / "pipeline-out-profile")
     table = sources["2n"].table

@@ -115,8 +115,8 @@ def rhs_cost(scene, speed, angle, omega0, steps):
     import jax
     import jax.numpy as jnp
 
-    from jaximpact import _dynamics as dyn
-    from jaximpact._simulate import _scaled, required_terms, scene_parameters
+    from jaximpact._engine.simulate import _scaled, required_terms, scene_parameters
+    from jaximpact._model import dynamics as dyn
 
     dtype = jnp.result_type(float)
     params = {k: jnp.full(speed.shape, v, dtype) for k, v in scene_parameters(scene).items()}
@@ -293,7 +293,7 @@ def plot(results):
 
 # The batch paths of one configuration, timed in the same process with interleaved repeats
 # (the machine is shared: ratios are measured side by side, not across runs). ``loop``: the
-# private step-loop setting of ``jaximpact._simulate._simulate``.
+# private step-loop setting of ``jaximpact._engine.simulate._simulate``.
 PATHS = {
     "plain": (
         "`diffeqsolve` vmapped over the whole batch (plain)",
@@ -312,7 +312,7 @@ def paths_worker(cfg):
 
     jax.config.update("jax_enable_x64", cfg["x64"])
     import jaximpact as ji
-    from jaximpact import _simulate as sim
+    from jaximpact._engine import simulate as sim
 
     scene = ji.table1_scene()
     speed, angle, omega0 = impacts("full", cfg["n"])
@@ -591,7 +591,7 @@ def profile_worker(cfg):
 
     jax.config.update("jax_enable_x64", cfg["x64"])
     import jaximpact as ji
-    from jaximpact import _simulate as sim
+    from jaximpact._engine import simulate as sim
 
     scene = ji.table1_scene()
     sp, an, om = impacts("full", cfg["lanes"])

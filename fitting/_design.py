@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import jaximpact
-from jaximpact._ranges import IMPLAUSIBLE, implausible
+from jaximpact._model.ranges import IMPLAUSIBLE, implausible
 from jaximpact.tables import (
     ImpactTable,
     atomic_write_text,
@@ -40,9 +40,15 @@ from jaximpact.tables import (
 )
 
 from ._data import OBSERVABLES, Observations
-from ._objective import FitError, Objective, check_names, default_scales, get_parameter
-from ._program import ResidualProgram
-from ._transforms import dphys_du, to_unbounded
+from ._least_squares.objective import (
+    FitError,
+    Objective,
+    check_names,
+    default_scales,
+    get_parameter,
+)
+from ._least_squares.program import ResidualProgram
+from ._least_squares.transforms import dphys_du, to_unbounded
 
 __all__ = ["DesignResult", "design", "log_det_information", "write_design"]
 
@@ -243,7 +249,7 @@ def design(
     if "cor_t" in observables and np.any(candidates.angle_deg == 0):
         raise FitError("observables: cor_t is undefined at normal impacts (angle_deg = 0)")
 
-    from ._objective import set_parameters
+    from ._least_squares.objective import set_parameters
 
     at_draws = _draw_subset(draws, names, max_draws)
     if at_draws is not None and not values:

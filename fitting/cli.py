@@ -129,7 +129,7 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
 
 
 def _parse_init(items) -> dict[str, float]:
-    from ._objective import FitError
+    from ._least_squares.objective import FitError
 
     out = {}
     for item in items:
@@ -178,7 +178,7 @@ def split_names(option: str, items, allowed, command: str = "fit") -> tuple[str,
             (the option took every word up to the next option), the message says how to give
             them.
     """
-    from ._objective import FitError
+    from ._least_squares.objective import FitError
 
     names = tuple(n.strip() for item in items for n in str(item).split(",") if n.strip())
     for name in names:
@@ -224,12 +224,18 @@ def cmd_fit(args) -> int:
     jax.config.update("jax_enable_x64", True)
 
     import jaximpact
-    from jaximpact._paths import FileProblem, check_readable, prepare_output, write_failed
-    from jaximpact._scene_io import describe_scene_source
+    from jaximpact._io.paths import FileProblem, check_readable, prepare_output, write_failed
+    from jaximpact._io.scene_files import describe_scene_source
 
-    from ._fit import fit
-    from ._objective import FITTABLE, FitError, check_names
-    from ._report import check_plot_path, plot_fit, result_dict, summary, write_json_dict
+    from ._least_squares.fit import fit
+    from ._least_squares.objective import FITTABLE, FitError, check_names
+    from ._least_squares.report import (
+        check_plot_path,
+        plot_fit,
+        result_dict,
+        summary,
+        write_json_dict,
+    )
 
     params = split_names("--params", args.params, FITTABLE)
     if not args.files:
@@ -292,12 +298,12 @@ def cmd_fit(args) -> int:
     if args.profile_plot and args.profile is None:
         raise FitError("--profile-plot needs --profile NAME")
     if args.draws:
-        from ._posterior_report import import_arviz
+        from ._bayesian.report import import_arviz
 
         import_arviz()
     scene = jaximpact.load_scene(scene_path)
     if args.posterior:  # a bad prior in the scene's [priors] must not cost the fit either
-        from ._priors import priors_for
+        from ._bayesian.priors import priors_for
 
         priors_for(names, priors, scene.priors)
     # Outputs are checked before the fit: a typo in -o must not cost the computation.
@@ -337,7 +343,7 @@ def cmd_fit(args) -> int:
     outputs = [(args.plot, drawn("the fitted model", lambda path: plot_fit(path, result)))]
     failed = [] if result.converged else [f"fit {result.message}"]
     if args.profile is not None and result.converged:
-        from ._profile import plot_profile, profile, profile_summary
+        from ._least_squares.profile import plot_profile, profile, profile_summary
 
         prof = profile(result, args.profile, points=args.profile_points, progress=progress)
         print(profile_summary(prof))
@@ -346,8 +352,8 @@ def cmd_fit(args) -> int:
             (args.profile_plot, drawn("the profile", lambda path: plot_profile(path, prof)))
         )
     if args.posterior and result.converged:
-        from ._posterior import sample_posterior
-        from ._posterior_report import (
+        from ._bayesian.posterior import sample_posterior
+        from ._bayesian.report import (
             add_to_result_dict,
             plot_corner,
             plot_predictive,
@@ -421,8 +427,8 @@ def _drawn(what: str, draw, progress: bool):
 
 def _parse_priors(items, names) -> dict:
     """``NAME=SPEC`` items -> ``{name: Prior}`` (bad input: a `FitError` naming the field)."""
-    from ._objective import FitError
-    from ._priors import parse_prior
+    from ._bayesian.priors import parse_prior
+    from ._least_squares.objective import FitError
 
     out = {}
     for item in items:
@@ -493,12 +499,12 @@ def cmd_design(args) -> int:
     jax.config.update("jax_enable_x64", True)
 
     import jaximpact
-    from jaximpact._paths import check_readable, prepare_output, write_failed
+    from jaximpact._io.paths import check_readable, prepare_output, write_failed
 
+    from ._bayesian.report import read_draws
     from ._data import OBSERVABLES
     from ._design import design, write_design
-    from ._objective import FITTABLE, FitError, check_names
-    from ._posterior_report import read_draws
+    from ._least_squares.objective import FITTABLE, FitError, check_names
 
     names = check_names(split_names("--params", args.params, FITTABLE, "design"))
     sigma = {}

@@ -20,8 +20,8 @@ import math
 import os
 import sys
 
-from ._cache import enable_compilation_cache
-from ._devices import use_all_cpu_cores
+from ._engine.devices import use_all_cpu_cores
+from ._io.cache import enable_compilation_cache
 
 # Exit status: 0 ok, 1 computation failed, 2 bad input (file, field, option), 3 the fit did
 # not converge (or is undetermined, or a misfit; see fitting/cli.py).
@@ -74,7 +74,7 @@ def scene_with_overrides(scene, overrides: dict):
 
 def _table(columns: dict, names) -> str:
     """A right-aligned text table: names, then units in brackets, then the rows."""
-    from .tables import COLUMN_UNITS
+    from ._io.tables import COLUMN_UNITS
 
     units = {n: f"[{COLUMN_UNITS[n]}]" if COLUMN_UNITS.get(n) else "" for n in names}
     cells = {n: [_fmt(v) for v in columns[n]] for n in names}
@@ -96,7 +96,7 @@ def failure_summary(reasons) -> str:
     """``2 max_steps (the solver's step limit was reached), 1 nonfinite (...)``."""
     from collections import Counter
 
-    from .tables import FAILURE_REASONS
+    from ._io.tables import FAILURE_REASONS
 
     counts = Counter(r for r in reasons if r)
     return ", ".join(f"{k} {r} ({FAILURE_REASONS[r]})" for r, k in sorted(counts.items()))
@@ -110,10 +110,10 @@ def cmd_simulate(args) -> int:
     import numpy as np
 
     from . import implausible_impacts, load_scene, simulate
-    from ._paths import check_readable, prepare_output, write_failed
-    from ._ranges import IMPLAUSIBLE
-    from ._scene_io import describe_scene_source
-    from .tables import ImpactTable, read_impacts, write_results
+    from ._io.paths import check_readable, prepare_output, write_failed
+    from ._io.scene_files import describe_scene_source
+    from ._io.tables import ImpactTable, read_impacts, write_results
+    from ._model.ranges import IMPLAUSIBLE
 
     # Every file first: a missing input or an unwritable output is reported before computing.
     scene = load_scene(args.scene)
@@ -203,9 +203,9 @@ def _simulate_from_cache(scene, table):
     import jax
     import numpy as np
 
-    from ._cache import cached_program
-    from ._results import ImpactResult
-    from ._simulate import integration_settings, scene_parameters
+    from ._engine.results import ImpactResult
+    from ._engine.simulate import integration_settings, scene_parameters
+    from ._io.cache import cached_program
 
     n = table.speed.size
     if not jax.config.jax_compilation_cache_dir or not 1 <= n <= CACHED_SIMULATE_MAX:
@@ -252,7 +252,7 @@ def _simulate_from_cache(scene, table):
 
 
 def cmd_scenes(args) -> int:
-    from ._scene_io import embedded_scenes, scene_path
+    from ._io.scene_files import embedded_scenes, scene_path
 
     known = embedded_scenes()
     width = max(map(len, known))
@@ -268,7 +268,7 @@ def cmd_show(args) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from ._scene_report import scene_report
+    from ._io.show import scene_report
 
     print(scene_report(args.scene))
     return 0
@@ -300,8 +300,8 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser(plugins: bool = True) -> argparse.ArgumentParser:
     from . import __version__
-    from ._sweep_cli import add_sweep_command
-    from .tables import COLUMN_UNITS
+    from ._io.tables import COLUMN_UNITS
+    from .sweep.cli import add_sweep_command
 
     parser = Parser(
         prog="jaximpact",

@@ -295,7 +295,7 @@ def test_output_through_a_symbolic_link_keeps_the_link(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from fitting._report import _atomic_savefig
+    from fitting._least_squares.report import _atomic_savefig
 
     picture = tmp_path / "b" / "fig.png"
     picture.write_bytes(b"")
@@ -310,7 +310,7 @@ def test_output_through_a_symbolic_link_keeps_the_link(tmp_path):
 def test_outputs_that_are_not_regular_files_are_refused(tmp_path):
     """Item 5: a pipe (or a link to one, or a device) is never replaced by a results file:
     exit 2, one line naming the path, before computing."""
-    from jaximpact._paths import FileProblem, output_target
+    from jaximpact._io.paths import FileProblem, output_target
 
     fifo = tmp_path / "pipe.csv"
     os.mkfifo(fifo)
@@ -356,8 +356,8 @@ def test_input_ranges_are_one_table_in_simulate_fit_and_design(tmp_path):
     from pathlib import Path
 
     import fitting
-    from fitting._priors import parse_prior
-    from jaximpact._ranges import RANGES
+    from fitting._bayesian.priors import parse_prior
+    from jaximpact._model.ranges import RANGES
     from jaximpact.tables import TableError, read_impacts
 
     rule = "friction must be finite and in [0, 10]"
@@ -441,7 +441,7 @@ def test_fit_and_design_warn_about_implausible_impacts(tmp_path):
     Hertz estimate of the overlap, the same 0.1 of the radius)."""
     import fitting
     from fitting._design import DesignResult
-    from fitting._fit import _implausible_impacts
+    from fitting._least_squares.fit import _implausible_impacts
     from jaximpact.tables import ImpactTable
 
     soft = jaximpact.table1_scene().replace(contact={"K": 1e6, "f0": 0.0})
@@ -487,7 +487,7 @@ def test_one_line_messages_for_bad_options_and_names(tmp_path):
     assert "missing DATA" in line and "'kharaz2001' looks like an argument: --init" in line
     line = one_line_error(run("fit", tmp_path / "nosuch.csv", "--params", "friction"))
     assert "not found" in line and "kharaz2001, kharaz2001_mindlin" in line
-    from fitting._objective import FITTABLE
+    from fitting._least_squares.objective import FITTABLE
     from fitting.cli import split_names
 
     assert split_names("--params", ["friction,G_star", "C_A"], FITTABLE) == (
@@ -508,8 +508,8 @@ def test_one_line_messages_for_bad_options_and_names(tmp_path):
     with pytest.raises(TableError) as err:
         check_impact_value("speed", np.float64(-2.0))
     assert "np.float64" not in str(err.value) and "value -2.0" in str(err.value)
-    from jaximpact._sweep_cli import summary_line
     from jaximpact.sweep import SweepSummary
+    from jaximpact.sweep.cli import summary_line
 
     done = SweepSummary("out", 64, 1, 64, 0, 1, 0, 0, 0.01, 1, True, 64)
     text = summary_line(done)
@@ -578,7 +578,7 @@ def test_undetermined_parameters_are_named_with_true_numbers(sigma_known):
     1e+08`, no names and finite standard errors; a dependent pair of columns must name both."""
     import math
 
-    from fitting._fit import _diagnose
+    from fitting._least_squares.fit import _diagnose
 
     names = ("C_A", "C_H", "f0")
     theta = np.array([0.9, 0.2, 300.0])
@@ -652,7 +652,7 @@ def test_fit_plot_labels_every_curve_and_axis(tmp_path, monkeypatch):
     """Item 8: the model curve in the legend, one label per curve (the per-angle curves of a
     synthetic fit had none), units on every axis, the fitted values with their uncertainty."""
     import fitting
-    import fitting._report as report
+    import fitting._least_squares.report as report
 
     data = tmp_path / "d.csv"
     rows = [f"{v},{a},0.5,0.8" for a in (20.0, 40.0) for v in (1.0, 2.0, 3.0)]
@@ -698,9 +698,9 @@ def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monk
     cut off and does not overlap the panels, whose marginals give value and interval."""
     from types import SimpleNamespace
 
-    import fitting._posterior_report as posterior_report
-    import fitting._report as report
-    from fitting._profile import Profile, plot_profile
+    import fitting._bayesian.report as posterior_report
+    import fitting._least_squares.report as report
+    from fitting._least_squares.profile import Profile, plot_profile
 
     figures = _captured_figure(monkeypatch, report)
     grid = np.linspace(250.0, 350.0, 7)

@@ -14,8 +14,8 @@ import pytest
 from test_derivatives import BATCH, seed
 
 import jaximpact as ji
-from jaximpact._simulate import PROGRAMS
-from jaximpact._tsit5 import STAGE_FORMS, LaneTsit5
+from jaximpact._engine.simulate import PROGRAMS
+from jaximpact._engine.tsit5 import STAGE_FORMS, LaneTsit5
 
 OUTPUTS = ("cor_n", "vt_out", "omega_out", "contact_time")
 

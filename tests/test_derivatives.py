@@ -21,7 +21,7 @@ import pytest
 
 import jaximpact as ji
 from jaximpact import reference as ref
-from jaximpact._sensitivity import INPUTS, OUTPUTS
+from jaximpact._engine.sensitivity import INPUTS, OUTPUTS
 
 TOL = 1e-3  # the target, relative to the column's typical magnitude
 

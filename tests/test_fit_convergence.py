@@ -27,8 +27,8 @@ import pytest
 
 import fitting
 import jaximpact
-from jaximpact import _cache
 from jaximpact import cli as ji_cli
+from jaximpact._io import cache as _cache
 
 TRUTH = {"C_A": 0.75, "C_H": 0.25, "f0": 300.0}
 NAMES = list(TRUTH)
@@ -158,7 +158,9 @@ def test_scatter_beyond_sigma_is_a_misfit(micro):
 def test_rank_deficient_fit_names_the_parameters():
     # A zero Jacobian column (a parameter the residuals do not depend on) is named.
     jac = np.array([[1.0, 0.0], [2.0, 0.0], [0.5, 0.0]])
-    d = fitting._fit._diagnose(jac, 1.0, 3, ("C_H", "f0"), np.array([0.25, 300.0]), True)
+    d = fitting._least_squares.fit._diagnose(
+        jac, 1.0, 3, ("C_H", "f0"), np.array([0.25, 300.0]), True
+    )
     assert d["rank"] == 1 and d["unidentifiable"] == ["f0"]
     assert d["stderr"]["f0"] == math.inf and math.isfinite(d["stderr"]["C_H"])
     assert d["undetermined"] and "f0" in d["undetermined"][0]

@@ -14,8 +14,10 @@ import pytest
 from jax.test_util import check_grads
 from scipy import integrate
 
-from jaximpact import _dynamics, _laws, _safe
-from jaximpact._units import ScaledParameters
+from jaximpact._model import dynamics as _dynamics
+from jaximpact._model import laws as _laws
+from jaximpact._model import safe as _safe
+from jaximpact._model.units import ScaledParameters
 
 jax.config.update("jax_enable_x64", True)
 
@@ -553,7 +555,7 @@ def test_energy_ledger_closes_and_losses_are_dissipative(rolling_moments, fricti
 @pytest.mark.parametrize("rotation", [True, False])
 def test_shell_friction_opposes_slip_stops_at_rolling_and_closes_the_ledger(rotation):
     # The closed-form friction of the contact shell (jaximpact._simulate._shell_friction).
-    from jaximpact._simulate import _shell_friction
+    from jaximpact._engine.simulate import _shell_friction
 
     terms = _dynamics.Terms(
         tangential=True,

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 import jaximpact as ji
-from jaximpact import _dynamics as dyn
-from jaximpact import _laws as laws
 from jaximpact import reference as ref
-from jaximpact._scene import SceneError, shear_modulus_star
-from jaximpact._simulate import _scaled, required_terms, scene_parameters
+from jaximpact._engine.simulate import _scaled, required_terms, scene_parameters
+from jaximpact._model import dynamics as dyn
+from jaximpact._model import laws
+from jaximpact._model.scene import SceneError, shear_modulus_star
 
 jax.config.update("jax_enable_x64", True)
 
@@ -185,7 +185,7 @@ def test_rigid_scenes_compile_none_of_it(batch):
     assert not terms.mindlin
     assert "xi" not in dyn.initial_state(terms, 0.1, 0.0, jnp.float64)
     assert batch["rigid_energy_tangential"] is None
-    from jaximpact._scene_report import scene_report
+    from jaximpact._io.show import scene_report
 
     left_out = scene_report("kharaz2001").split("left out")[1]
     assert 'tangential compliance (model.tangential = "rigid")' in left_out
@@ -277,7 +277,7 @@ def test_smooth_model_agrees_with_the_exact_reference():
 def test_derivatives_of_friction_and_G_star_match_the_reference():
     """d(output)/d(friction, G*) (forward mode) against Richardson-checked central differences
     of the reference, scaled like tests/test_derivatives.py: x d/dx of outputs of order one."""
-    from jaximpact._sensitivity import output_jacobian
+    from jaximpact._engine.sensitivity import output_jacobian
 
     scene = ji.load_scene("kharaz2001")
     points = [(3.9, 20.0, 0.1, 0.7), (3.9, 45.0, 0.1, 0.7)]
@@ -303,7 +303,7 @@ def test_derivatives_of_friction_and_G_star_match_the_reference():
 
 def test_G_star_is_fittable_and_the_mindlin_scene_is_embedded():
     import fitting
-    from fitting._objective import set_parameters
+    from fitting._least_squares.objective import set_parameters
     from fitting.cli import EMBEDDED_DATA
 
     scene = ji.load_scene("kharaz2001_mindlin")

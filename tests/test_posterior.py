@@ -17,9 +17,11 @@ import pytest
 
 import fitting
 import jaximpact
-from fitting import _design, _posterior, _profile
-from fitting._posterior_report import add_to_result_dict
-from fitting._priors import Prior, parse_prior, priors_for
+from fitting import _design
+from fitting._bayesian import posterior as _posterior
+from fitting._bayesian.priors import Prior, parse_prior, priors_for
+from fitting._bayesian.report import add_to_result_dict
+from fitting._least_squares import profile as _profile
 from jaximpact.cli import main as cli_main
 
 NAMES = ("C_A", "C_H", "f0")
@@ -294,7 +296,7 @@ def test_scene_priors_are_read_and_overridden(tmp_path):
     assert dict(scene.priors) == {"f0": "normal:300:50", "K": "loguniform:1e9:1e12"}
     got = priors_for(NAMES, None, scene.priors)
     assert got["f0"] == Prior("normal", 300.0, 50.0)
-    assert got["C_A"] == fitting._priors.default_prior("C_A")
+    assert got["C_A"] == fitting._bayesian.priors.default_prior("C_A")
     assert priors_for(NAMES, {"f0": "normal:1:2"}, scene.priors)["f0"] == Prior("normal", 1, 2)
     with pytest.raises(fitting.FitError, match="scene priors.f0"):
         priors_for(NAMES, None, (("f0", "normal:300"),))
@@ -312,7 +314,7 @@ def test_scene_priors_are_read_and_overridden(tmp_path):
 
 def test_every_fittable_name_has_a_default_prior():
     for name in fitting.FITTABLE:
-        prior = fitting._priors.default_prior(name)
+        prior = fitting._bayesian.priors.default_prior(name)
         assert 0 < prior.a < prior.b
 
 

@@ -9,8 +9,8 @@ import pytest
 from scipy.integrate import quad
 
 import jaximpact as ji
-from jaximpact import _simulate
-from jaximpact._results import Status
+from jaximpact._engine import simulate as _simulate
+from jaximpact._engine.results import Status
 
 
 def elastic_scene(radius=1e-3, density=2500.0, K=5e10, friction=0.0, **model):

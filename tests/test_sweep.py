@@ -147,7 +147,7 @@ def test_chunks_solved_as_simulate_solves_them_compile_once(tmp_path, monkeypatc
     padded), and a second sweep of other values of the same model compiles nothing at all."""
     import logging
 
-    import jaximpact._simulate as simulate_module
+    import jaximpact._engine.simulate as simulate_module
 
     monkeypatch.setattr(simulate_module, "CHUNK_ONE_DEVICE", 16)
     # Normal impacts without adhesion: a small program of its own (no other test compiles it).
@@ -557,7 +557,7 @@ def test_non_sweep_directory_is_refused(impacts, tmp_path):
 
 
 def test_unwritable_output_is_refused_before_computing(impacts, tmp_path, monkeypatch):
-    import jaximpact.sweep as sweep_module
+    import jaximpact.sweep._run as sweep_module
 
     def no_computing(*args, **kwargs):
         raise AssertionError("computed before checking the output")

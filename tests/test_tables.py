@@ -6,7 +6,6 @@ import os
 import numpy as np
 import pytest
 
-from jaximpact import tables
 from jaximpact.tables import (
     COLUMN_UNITS,
     FAILURE_REASONS,
@@ -505,7 +504,7 @@ def test_failed_write_leaves_old_file_and_no_temporary(tmp_path, monkeypatch, fa
     def fail(*args, **kwargs):
         raise OSError("disk trouble")
 
-    monkeypatch.setattr(tables.os, failing, fail)
+    monkeypatch.setattr(os, failing, fail)
     with pytest.raises(OSError, match="disk trouble"):
         write_results(out, {"speed": [1.0], "angle_deg": [0.0]}, results_for(1))
     assert out.read_text() == "previous results\n"
@@ -517,7 +516,7 @@ def test_interrupt_midway_removes_temporary(tmp_path, monkeypatch):
     def interrupt(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(tables.os, "replace", interrupt)
+    monkeypatch.setattr(os, "replace", interrupt)
     with pytest.raises(KeyboardInterrupt):
         atomic_write_text(tmp_path / "x.txt", "data")
     assert list(tmp_path.iterdir()) == []

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import jaximpact as ji
-from jaximpact import _simulate as sim
+from jaximpact._engine import simulate as sim
 
 FIELDS = ("status", "steps", "cor_n", "vt_out", "omega_out", "contact_time", "max_overlap")
 FIELDS += ("loss_friction", "energy_out")

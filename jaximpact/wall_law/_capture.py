@@ -43,8 +43,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._scene import SceneError
-from .._simulate import scene_parameters
+from .._engine.simulate import scene_parameters
+from .._model.scene import SceneError
 
 __all__ = ["CaptureSpeed", "CaptureStatus", "adhesion_speed", "capture_speed", "scene_with"]
 
@@ -151,7 +151,7 @@ def adhesion_speed(radius, density, K, f0):
 
 def _margin(scene, params, speed, angle_deg, omega0):
     """``g = (vn_out / speed)^2`` and the simulator's status."""
-    from .._api import simulate
+    from .._engine.api import simulate
 
     res = simulate(scene_with(scene, params), speed, angle_deg, omega0)
     return (res.vn_out / speed) ** 2, res.status
@@ -258,7 +258,7 @@ def _flat_inputs(names, values, angle, omega):
 
 def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> dict:
     """The search of the module docstring on concrete values; numpy arrays of ``shape``."""
-    from .._api import simulate
+    from .._engine.api import simulate
 
     params, angle, omega, shape = _flat_inputs(names, values, angle, omega)
     size = angle.size

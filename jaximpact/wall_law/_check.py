@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._simulate import scene_parameters
+from .._engine.simulate import scene_parameters
 from ._capture import scene_with
 from ._table import WallLaw, _cell
 
@@ -29,7 +29,7 @@ def compare_with_simulate(law: WallLaw, scene, points: dict, evaluate=None) -> d
     same returns, e.g. the compiled C function) and ``simulate`` at ``points`` (as
     :func:`random_points` gives them; the speed is the ratio times the interpolated
     reference speed). Returns the inputs, both results and the errors."""
-    from .._api import simulate
+    from .._engine.api import simulate
 
     evaluate = evaluate or law.evaluate
     r, angle, omega, x = (points[k] for k in ("radius", "angle_deg", "omega0", "speed_ratio"))

@@ -127,7 +127,7 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 def write_code(law: WallLaw, directory, scene_name: str = "", write=None) -> list[Path]:
     """Write the header, ``openfoam/`` and ``fluent/`` into ``directory``; ``write(path,
     text)`` writes one file (default: atomically). Returns the paths written."""
-    from .._paths import atomic_output
+    from .._io.paths import atomic_output
 
     def default_write(path: Path, text: str) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)

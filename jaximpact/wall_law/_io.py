@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._scene import SceneError
+from .._model.scene import SceneError
 from ._capture import CaptureStatus
 from ._table import WallLaw
 
@@ -107,7 +107,7 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
 
 def write_netcdf(path, law: WallLaw, scene_name: str = "") -> None:
     """``wall_law.nc`` (NetCDF-4 through h5netcdf), atomically."""
-    from .._paths import atomic_output
+    from .._io.paths import atomic_output
 
     ds = to_xarray(law, scene_name)
     try:
@@ -145,7 +145,7 @@ def write_parquet(path, law: WallLaw, scene_name: str = "") -> None:
     import pyarrow.parquet as pq
 
     from .. import __version__
-    from .._paths import atomic_output
+    from .._io.paths import atomic_output
 
     cols = long_columns(law)
     units = {k: u for k, (u, _) in COORDS.items()}
@@ -172,8 +172,8 @@ def read_draws(path) -> dict:
     """Posterior draws of scene parameters from an ArviZ NetCDF file (``jaximpact fit
     --posterior --draws FILE.nc``): ``{name: 1-D array}``, chains pooled; other variables
     (noise factors) are left out."""
-    from .._paths import check_readable
-    from .._simulate import PARAMETERS
+    from .._engine.simulate import PARAMETERS
+    from .._io.paths import check_readable
 
     check_readable(path, "draws file")
     xr = _xarray()

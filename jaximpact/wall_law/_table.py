@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._scene import SceneError
-from .._simulate import PARAMETERS, scene_parameters
+from .._engine.simulate import PARAMETERS, scene_parameters
+from .._model.scene import SceneError
 from ._capture import CaptureStatus, capture_speed, scene_with
 
 __all__ = [
@@ -301,7 +301,7 @@ def wall_law(
     **Raises:** `SceneError` (bad input, naming it); :class:`WallLawError` where a capture
     speed or an impact of the grid failed.
     """
-    from .._api import simulate
+    from .._engine.api import simulate
 
     say = progress or (lambda message: None)
     start = time.perf_counter()

@@ -41,7 +41,7 @@ exit status: 0 done; 1 the computation failed (a capture speed or an impact of t
 
 def _values(option: str, spec: str, name: str):
     """The values of ``--option SPEC`` (the sweep grid syntax)."""
-    from .._scene import SceneError
+    from .._model.scene import SceneError
     from ..sweep import SweepError, parse_grid
 
     try:
@@ -59,9 +59,9 @@ def cmd_wall_law(args) -> int:
     import numpy as np
 
     from .. import load_scene
-    from .._paths import FileProblem, prepare_output
-    from .._scene import SceneError
-    from .._scene_io import describe_scene_source
+    from .._io.paths import FileProblem, prepare_output
+    from .._io.scene_files import describe_scene_source
+    from .._model.scene import SceneError
     from ._check import compare_with_simulate, random_points
     from ._codegen import HEADER_NAME, write_code
     from ._io import read_draws, write_netcdf, write_parquet

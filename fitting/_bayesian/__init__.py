@@ -1,0 +1,1 @@
+"""Bayesian identification: priors, the posterior sampler (HMC/NUTS) and its report."""

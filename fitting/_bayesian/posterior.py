@@ -1,0 +1,777 @@
+"""Bayesian posterior of the fitted parameters by Hamiltonian Monte Carlo (blackjax).
+
+The log density is written in the solver variables ``u`` of ``_transforms`` (with the Jacobian
+term of each prior, ``_priors``), plus one log noise factor per observable that has no sigma
+column. It calls the simulator directly, so the log density and its gradient (the simulator's
+own derivatives, see ``jaximpact._engine.simulate``) are one compiled JAX program with the sampler's
+step around them. The chains are a ``vmap`` that moves in step (the same number of leapfrog
+steps for all), so each evaluation runs every chain's impacts as one batch.
+
+Likelihood (``r``: the fit's weighted residuals, ``(model - observed) / scale``):
+
+- ``gaussian``: ``r / s ~ N(0, 1)``; ``s = 1`` where the data give sigma, else a factor
+  ``s_k`` per observable ``k`` (sampled, log-uniform on [1e-3, 1e3]) on the default scale;
+- ``student-t``: ``r / s ~ t(nu)`` (heavy tails: an outlier pulls less).
+
+A run is good only when every split R-hat is at most :data:`MAX_RHAT` and no transition
+diverged; otherwise ``status`` is ``"not converged"`` and ``problems`` says why.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from .._least_squares.fit import FitResult, fit
+from .._least_squares.objective import FitError, Objective, check_names
+from .._least_squares.transforms import dphys_du, to_physical, to_unbounded
+from .priors import Prior, priors_for
+
+__all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
+
+LIKELIHOODS = ("gaussian", "student-t")
+#: A run with a larger split R-hat for any parameter is not called converged.
+MAX_RHAT = 1.01
+#: HMC trajectory length in units of the metric: a quarter period of a Gaussian posterior
+#: whose covariance the metric matches, where successive draws are independent.
+TRAJECTORY = math.pi / 2
+#: Most leapfrog steps of one transition (a step size collapsed by a bad region stops here).
+MAX_LEAPFROG = 64
+#: Default solver rtol of the posterior's evaluations in float64 (scenes that set their own
+#: rtol keep it). The sampler needs the log density to well under 0.1 and its gradient to a few
+#: per cent; rtol 1e-8 gives both with a wide margin (measured in BENCHMARKS.md: "Posterior
+#: and design") in about half the steps of the fit's default 1e-10.
+SAMPLING_RTOL = 1e-8
+#: Default warm-up steps per chain (see `_run_hmc`: it starts from the least-squares shape).
+WARMUP = 300
+#: Range of the sampled noise factors (log-uniform prior).
+NOISE_FACTOR_RANGE = (1e-3, 1e3)
+#: Samplers: the independence sampler (default, values only: every proposal of every chain
+#: evaluated in a few large batches) and HMC (gradients; for posteriors the independence
+#: proposal cannot cover). ``auto``: the independence sampler, HMC where its Pareto k > 0.7.
+SAMPLERS = ("auto", "independence", "hmc")
+#: Largest Pareto shape of the importance weights at which the independence sampler's
+#: proposal is trusted (Vehtari et al. 2024, "Pareto smoothed importance sampling").
+MAX_KHAT = 0.7
+#: Pilot draws that place the independence sampler's proposal.
+PILOT = 1000
+#: Proposal: Student-t with this many degrees of freedom, covariance inflated by this factor.
+PROPOSAL_NU = 7.0
+PROPOSAL_INFLATION = 1.15
+#: Points evaluated per compiled call of the independence sampler (times the impacts: lanes).
+BLOCK = 500
+
+
+@dataclass
+class PosteriorResult:
+    """Result of :func:`sample_posterior`.
+
+    Attributes:
+        params: sampled parameter names.
+        draws: ``(chains, draws, p)`` physical values.
+        noise: names of the sampled noise factors (``sigma_factor[cor_n]``: sigma in units of
+            the default scale of that observable), and ``noise_draws`` ``(chains, draws, k)``.
+        summary: ``{name: {mean, median, sd, q05, q95, rhat, ess}}`` for params and noise.
+        correlation: ``(p, p)`` correlation of the draws (physical values).
+        divergences: divergent transitions after warm-up (all chains).
+        status: ``"converged"`` or ``"not converged"``; ``converged``; ``problems``.
+        priors: ``{name: Prior}``; likelihood, nu.
+        sampler: ``"independence"`` or ``"hmc"``; khat: Pareto shape of the independence
+            proposal's importance weights (NaN for HMC).
+        step_size: HMC's per chain after adaptation (NaN for the independence sampler);
+            acceptance: mean acceptance rate.
+        evaluations: log-density evaluations (the independence sampler: points; HMC:
+            gradient evaluations of all chains at once).
+        timings: seconds: ``fit``, ``compile``, ``warmup``, ``sampling``, ``total``.
+        fit: the least-squares `FitResult` the chains started from (None for a toy oracle).
+        log_density: ``(chains, draws)``.
+    """
+
+    params: tuple[str, ...]
+    draws: np.ndarray
+    noise: tuple[str, ...]
+    noise_draws: np.ndarray
+    summary: dict
+    correlation: np.ndarray
+    divergences: int
+    status: str
+    converged: bool
+    problems: list[str]
+    priors: dict[str, Prior]
+    likelihood: str
+    nu: float
+    step_size: np.ndarray
+    acceptance: float
+    evaluations: int
+    timings: dict[str, float]
+    log_density: np.ndarray
+    fit: FitResult | None = None
+    program: Callable | None = field(default=None, repr=False)
+    noise_groups: np.ndarray | None = field(default=None, repr=False)
+    sampler: str = "hmc"
+    khat: float = math.nan
+
+    @property
+    def chains(self) -> int:
+        return self.draws.shape[0]
+
+    @property
+    def message(self) -> str:
+        return self.status + ("" if not self.problems else ": " + "; ".join(self.problems))
+
+
+# -- the log density ------------------------------------------------------------------------
+
+
+def _model_residuals(objective: Objective, names, value=None, scale=None):
+    """``u -> r``: the fit's weighted residuals as a JAX function (values and derivatives from
+    the simulator's step loop; no host round trip); ``value``, ``scale``: observed values and
+    scales in place of the objective's."""
+    value = objective._value if value is None else value
+    scale = objective._scale if scale is None else scale
+
+    def residuals(u):
+        theta = to_physical(names, u)
+        result = objective._simulate_impl(theta)
+        return objective.residuals_from_result(result, objective.hertz_time(theta), value, scale)
+
+    return residuals
+
+
+def _log_density(residuals, names, priors, groups, n_noise, likelihood, nu):
+    """``z = (u, log noise factors) -> log posterior`` (up to a constant)."""
+    p = len(names)
+    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu)
+    return lambda z: terms(z, residuals(z[:p]))
+
+
+def _posterior_terms(names, priors, groups, n_noise, likelihood, nu):
+    """``(z, r) -> log posterior`` given the residuals ``r`` at ``z``'s parameters."""
+    p = len(names)
+    # Rows with a sigma use factor 1 (index n_noise, a fixed 0 appended to the log factors).
+    index = jnp.asarray(np.where(groups >= 0, groups, n_noise))
+    lo, hi = (math.log(v) for v in NOISE_FACTOR_RANGE)
+
+    def log_density(z, r):
+        u, log_s = z[:p], z[p:]
+        lp = sum(priors[n].log_density_u(n, u[i]) for i, n in enumerate(names))
+        if n_noise:
+            inside = jnp.all((log_s >= lo) & (log_s <= hi))
+            lp = lp + jnp.where(inside, 0.0, -jnp.inf)
+        log_scale = jnp.concatenate([log_s, jnp.zeros(1, z.dtype)])[index]
+        x = r * jnp.exp(-log_scale)
+        if likelihood == "gaussian":
+            ll = -0.5 * x**2 - log_scale
+        else:
+            ll = -0.5 * (nu + 1) * jnp.log1p(x**2 / nu) - log_scale
+        return lp + jnp.sum(ll)
+
+    return log_density
+
+
+def _noise_groups(objective: Objective) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Noise factor of each observation (index, -1 where the data give sigma) and the names."""
+    obs = objective.observations
+    no_sigma = ~np.isfinite(obs.sigma)
+    kinds = [k for k in dict.fromkeys(obs.observable[no_sigma])]
+    groups = np.full(len(obs), -1)
+    for j, k in enumerate(kinds):
+        groups[no_sigma & (obs.observable == k)] = j
+    return groups, tuple(f"sigma_factor[{k}]" for k in kinds)
+
+
+# -- the sampler ----------------------------------------------------------------------------
+
+
+def _run_hmc(log_density, z0, metric, *, warmup, draws, seed, target_accept, progress):
+    """Warm-up then draws of every chain (rows of ``z0``), all chains one batch.
+
+    Returns draws ``(C, D, d)``, log densities ``(C, D)``, divergent ``(C, D)``, acceptance
+    ``(C, D)``, the step size, the log-density evaluations (of the whole batch) and the
+    seconds of warm-up and sampling.
+
+    Each step is one HMC transition of every chain with the same number of leapfrog steps
+    (blackjax's HMC kernel, ``vmap``-ed): a trajectory of :data:`TRAJECTORY` (in units of the
+    metric, jittered by a factor drawn from [0.5, 1.5] per step) divided by the step size. The
+    chains thus stay in step, each evaluation of the log density fills the batch with all
+    chains, and no chain waits for a deeper tree (NUTS's cost under ``vmap``). The warm-up
+    starts from the least-squares covariance ``metric`` (the posterior's own shape, the C_A-f0
+    ridge included):
+
+    1. first half: dual averaging of one step size shared by all chains, with ``metric``;
+    2. the metric re-estimated from the second quarter's draws of all chains pooled, shrunk
+       slightly towards ``metric``;
+    3. second half: dual averaging again with that metric.
+    """
+    import blackjax
+    from blackjax.adaptation.step_size import dual_averaging_adaptation
+
+    chains, dim = z0.shape
+    kernel = blackjax.hmc.build_kernel()
+
+    def one(key, state, step_size, inverse_mass_matrix, n_leapfrog):
+        return kernel(key, state, log_density, step_size, inverse_mass_matrix, n_leapfrog)
+
+    # One compiled program for every step of warm-up and sampling (the step size, metric and
+    # leapfrog count are inputs).
+    step = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
+    da_init, da_update, _ = dual_averaging_adaptation(target_accept)
+    da_update = jax.jit(da_update)
+    rng = np.random.default_rng(seed)
+    keys = iter(jax.random.split(jax.random.PRNGKey(seed), warmup + draws))
+    evaluations = [1]
+
+    def transition(states, step_size, imm):
+        n = int(np.clip(np.ceil(rng.uniform(0.5, 1.5) * TRAJECTORY / step_size), 1, MAX_LEAPFROG))
+        evaluations[0] += n
+        key = jax.random.split(next(keys), chains)
+        return step(key, states, jnp.asarray(step_size), jnp.asarray(imm), jnp.asarray(n))
+
+    def bar(total, what):
+        return _progress_bar(total, f"posterior {what} ({chains} chains)", "step", progress)
+
+    t0 = time.perf_counter()
+    states = jax.jit(jax.vmap(lambda z: blackjax.hmc.init(z, log_density)))(jnp.asarray(z0))
+    imm = np.asarray(metric, dtype=float)
+    step_size = 0.5  # in units of the metric's standard deviations
+    first = warmup // 2
+    pooled = []
+    with bar(warmup, "warm-up") as progress_bar:
+        for phase, (begin, stop) in enumerate(((0, first), (first, warmup))):
+            da = da_init(step_size)
+            for i in range(begin, stop):
+                states, info = transition(states, float(np.exp(da.log_step_size)), imm)
+                accept = np.nan_to_num(np.asarray(info.acceptance_rate), nan=0.0)
+                da = da_update(da, float(np.mean(accept)))
+                if phase == 0 and i >= first // 2:
+                    pooled.append(np.asarray(states.position))
+                progress_bar.update()
+                progress_bar.set_postfix(evaluations=evaluations[0], refresh=False)
+            if stop > begin:
+                step_size = float(np.exp(da.log_step_size_avg))
+            if phase == 0 and len(pooled) * chains > 2 * dim:
+                imm = _pooled_metric(np.concatenate(pooled), imm)
+    t_warm = time.perf_counter() - t0
+
+    positions, lps, divergent, accept = [], [], [], []
+    t0 = time.perf_counter()
+    with bar(draws, "draws") as progress_bar:
+        for _ in range(draws):
+            states, info = transition(states, step_size, imm)
+            positions.append(np.asarray(states.position))
+            lps.append(np.asarray(states.logdensity))
+            divergent.append(np.asarray(info.is_divergent))
+            accept.append(np.asarray(info.acceptance_rate))
+            progress_bar.update()
+            progress_bar.set_postfix(evaluations=evaluations[0], refresh=False)
+    t_draw = time.perf_counter() - t0
+    stack = lambda xs: np.swapaxes(np.stack(xs), 0, 1)  # noqa: E731
+    return (
+        stack(positions),
+        stack(lps),
+        stack(divergent),
+        stack(accept),
+        step_size,
+        evaluations[0],
+        t_warm,
+        t_draw,
+    )
+
+
+def _pooled_metric(samples: np.ndarray, prior_metric: np.ndarray, weight: float = 5.0):
+    """Covariance of the pooled warm-up ``samples`` ``(n, d)``, shrunk towards
+    ``prior_metric`` as if it were ``weight`` more samples (Stan shrinks towards a small
+    identity the same way); ``prior_metric`` again if the estimate is not positive definite."""
+    n = len(samples)
+    estimate = (n * np.atleast_2d(np.cov(samples, rowvar=False)) + weight * prior_metric) / (
+        n + weight
+    )
+    try:
+        np.linalg.cholesky(estimate)
+    except np.linalg.LinAlgError:
+        return prior_metric
+    return estimate if np.all(np.isfinite(estimate)) else prior_metric
+
+
+def split_rhat(x: np.ndarray) -> float:
+    """Split R-hat (Gelman et al. 2013) of draws ``x`` ``(chains, draws)``: each chain cut in
+    two halves, then the potential scale reduction of the halves."""
+    from blackjax.diagnostics import potential_scale_reduction
+
+    half = x.shape[1] // 2
+    halves = np.concatenate([x[:, :half], x[:, half : 2 * half]], axis=0)
+    return float(potential_scale_reduction(jnp.asarray(halves)))
+
+
+def effective_sample_size(x: np.ndarray) -> float:
+    """Effective sample size of draws ``x`` ``(chains, draws)`` (all chains together)."""
+    from blackjax.diagnostics import effective_sample_size as ess
+
+    return float(ess(jnp.asarray(x)))
+
+
+def judge(summary: Mapping[str, dict], divergences: int) -> list[str]:
+    """Why a run cannot be called good (empty if it can): a split R-hat above
+    :data:`MAX_RHAT` (or undefined), or any divergent transition after warm-up."""
+    problems = []
+    worst = max(
+        summary,
+        key=lambda n: (
+            -math.inf
+            if summary[n]["rhat"] <= MAX_RHAT
+            else math.inf
+            if not math.isfinite(summary[n]["rhat"])
+            else summary[n]["rhat"]
+        ),
+    )
+    if not summary[worst]["rhat"] <= MAX_RHAT:
+        problems.append(
+            f"split R-hat of {worst} is {summary[worst]['rhat']:.4f} > {MAX_RHAT} (the chains "
+            "disagree: run longer or check for several modes)"
+        )
+    if divergences:
+        problems.append(
+            f"{divergences} divergent transition(s) after warm-up (the sampler could not "
+            "follow the posterior's curvature there; the draws may be biased)"
+        )
+    return problems
+
+
+def _summarize(x: np.ndarray) -> dict:
+    flat = x.reshape(-1)
+    q05, median, q95 = np.quantile(flat, [0.05, 0.5, 0.95])
+    return {
+        "mean": float(np.mean(flat)),
+        "median": float(median),
+        "sd": float(np.std(flat, ddof=1)),
+        "q05": float(q05),
+        "q95": float(q95),
+        "rhat": split_rhat(x),
+        "ess": effective_sample_size(x),
+    }
+
+
+def _sample(
+    residuals,
+    names,
+    u_center,
+    cov_u,
+    priors,
+    groups,
+    noise,
+    log_noise_center,
+    *,
+    likelihood,
+    nu,
+    chains,
+    draws,
+    warmup,
+    seed,
+    jitter,
+    target_accept,
+    progress,
+    z0=None,
+    sampler="auto",
+    batch_log_density=None,
+) -> PosteriorResult:
+    """The sampler on any residual function ``u -> r`` (JAX, differentiable): the path of
+    :func:`sample_posterior`, open to a toy problem with a known posterior.
+    ``batch_log_density``: ``Z (n, d) -> (n,)``, the independence sampler's (default: the
+    log density ``vmap``-ed)."""
+    p, k = len(names), len(noise)
+    starts_given = z0 is not None  # chains placed by hand: HMC from there
+    log_density = _log_density(residuals, names, priors, np.asarray(groups), k, likelihood, nu)
+    if batch_log_density is None:
+        batch_log_density = jax.jit(jax.vmap(log_density))
+    # Starts: the least-squares optimum plus a jitter of `jitter` standard errors.
+    rng = np.random.default_rng(seed)
+    cov_u = np.asarray(cov_u, dtype=float)
+    if not np.all(np.isfinite(cov_u)):
+        cov_u = np.eye(p) * 1e-4
+    chol = np.linalg.cholesky(cov_u + 1e-12 * np.eye(p))
+    u0 = np.asarray(u_center) + jitter * rng.standard_normal((chains, p)) @ chol.T
+    s0 = np.asarray(log_noise_center) + 0.1 * jitter * rng.standard_normal((chains, k))
+    if z0 is None:
+        z0 = np.concatenate([u0, s0], axis=1)
+    metric = np.zeros((p + k, p + k))
+    metric[:p, :p] = cov_u + 1e-12 * np.eye(p)
+    # log of a fitted noise factor: variance about 1 / (2 n_k) for n_k observations
+    for j in range(k):
+        metric[p + j, p + j] = 0.5 / max(int(np.sum(np.asarray(groups) == j)), 1)
+    center = np.concatenate([np.asarray(u_center, float), np.asarray(log_noise_center, float)])
+    khat, used = math.nan, "hmc"
+    if sampler in ("auto", "independence") and not starts_given:
+        z, lp, accept, khat, evaluations, t_warm, t_draw = _run_independence(
+            batch_log_density,
+            center,
+            metric,
+            chains=chains,
+            warmup=warmup,
+            draws=draws,
+            seed=seed,
+            progress=progress,
+        )
+        divergent, step_size, used = np.zeros(lp.shape, bool), math.nan, "independence"
+        if sampler == "auto" and not khat <= MAX_KHAT:
+            if progress:
+                print(
+                    f"posterior: the independence proposal misses part of the posterior "
+                    f"(Pareto k {khat:.2f} > {MAX_KHAT}); sampling by HMC",
+                    file=sys.stderr,
+                )
+            used = "hmc"
+    if used == "hmc":
+        z, lp, divergent, accept, step_size, evaluations, t_warm, t_draw = _run_hmc(
+            log_density,
+            z0,
+            metric,
+            warmup=warmup,
+            draws=draws,
+            seed=seed,
+            target_accept=target_accept,
+            progress=progress,
+        )
+    theta = np.asarray(jax.vmap(jax.vmap(lambda u: to_physical(names, u)))(jnp.asarray(z[..., :p])))
+    noise_draws = np.exp(z[..., p:])
+    summary = {n: _summarize(theta[..., i]) for i, n in enumerate(names)}
+    summary.update({n: _summarize(noise_draws[..., j]) for j, n in enumerate(noise)})
+    flat = theta.reshape(-1, p)
+    correlation = np.corrcoef(flat, rowvar=False) if p > 1 else np.ones((1, 1))
+    n_div = int(np.sum(divergent))
+    problems = judge(summary, n_div)
+    if used == "independence" and not khat <= MAX_KHAT:
+        problems.append(
+            f"the independence proposal misses part of the posterior (Pareto k {khat:.2f} > "
+            f"{MAX_KHAT}); use sampler='hmc'"
+        )
+    status = "not converged" if problems else "converged"
+    return PosteriorResult(
+        params=tuple(names),
+        draws=theta,
+        noise=tuple(noise),
+        noise_draws=noise_draws,
+        summary=summary,
+        correlation=correlation,
+        divergences=n_div,
+        status=status,
+        converged=not problems,
+        problems=problems,
+        priors=dict(priors),
+        likelihood=likelihood,
+        nu=float(nu),
+        step_size=np.full(chains, step_size),
+        sampler=used,
+        khat=khat,
+        acceptance=float(np.mean(accept)),
+        evaluations=evaluations,
+        timings={"warmup": t_warm, "sampling": t_draw},
+        log_density=lp,
+    )
+
+
+# -- the independence sampler ------------------------------------------------------------
+
+
+def _batch_log_density(objective: Objective, names, priors, groups, n_noise, likelihood, nu):
+    """``Z (n, d) -> log posterior (n,)``: every row's impacts in one simulation (a flat
+    batch of ``n x impacts`` lanes; the simulator under ``vmap`` costs 2-3x that)."""
+    p = len(names)
+    value, scale = objective._value, objective._scale
+    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu)
+
+    def log_density(Z):
+        theta = jax.vmap(lambda u: to_physical(names, u))(Z[:, :p])
+        result = objective._simulate_impl(tuple(theta[:, i : i + 1] for i in range(p)))
+
+        def one(result, th, z):
+            r = objective.residuals_from_result(result, objective.hertz_time(th), value, scale)
+            return terms(z, r)
+
+        return jax.vmap(one)(result, theta, Z)
+
+    return jax.jit(log_density)
+
+
+class _StudentT:
+    """Multivariate Student-t proposal: ``mean + L x / sqrt(g / nu)`` (``x ~ N(0, I)``,
+    ``g ~ chi2(nu)``); heavier tails than the posterior keep the importance weights bounded."""
+
+    def __init__(self, mean, cov, nu=PROPOSAL_NU):
+        self.mean, self.nu = np.asarray(mean, float), float(nu)
+        self.chol = np.linalg.cholesky(np.asarray(cov, float))
+
+    def sample(self, rng, n):
+        x = rng.standard_normal((n, len(self.mean)))
+        g = rng.chisquare(self.nu, (n, 1))
+        return self.mean + (x @ self.chol.T) / np.sqrt(g / self.nu)
+
+    def log_density(self, Z):
+        d = len(self.mean)
+        y = np.linalg.solve(self.chol, (np.asarray(Z) - self.mean).T).T
+        return -0.5 * (self.nu + d) * np.log1p(np.sum(y * y, axis=1) / self.nu)
+
+
+def _evaluate(log_density, Z, block, progress_bar):
+    """Log densities of the rows of ``Z``, ``block`` rows per call (one compiled shape: the
+    last block is padded with copies of its first row)."""
+    out = []
+    for i in range(0, len(Z), block):
+        part = Z[i : i + block]
+        pad = block - len(part)
+        if pad:
+            part = np.concatenate([part, np.repeat(part[:1], pad, axis=0)])
+        out.append(np.asarray(log_density(jnp.asarray(part)))[: block - pad])
+        progress_bar.update(block - pad)
+    return np.nan_to_num(np.concatenate(out), nan=-np.inf)
+
+
+def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, progress):
+    """Independence Metropolis-Hastings with a Student-t proposal fitted to the posterior.
+
+    1. Pilot: :data:`PILOT` draws from a t proposal on the least-squares optimum and
+       covariance (inflated by :data:`PROPOSAL_INFLATION`); their importance weights give the
+       posterior's mean and covariance, and the main proposal is the t on those.
+    2. Every chain proposes ``warmup + draws`` independent points from the main proposal: all
+       chains' proposals are evaluated as a few large batches (the lanes full), then each
+       chain accepts or rejects in turn (``min(1, w' / w)``, ``w = p / q``). A chain starts at
+       a pilot point drawn by its importance weight; its first ``warmup`` steps are dropped.
+
+    Returns draws ``(C, D, d)``, log densities ``(C, D)``, acceptance ``(C, D)``, the Pareto
+    shape ``k`` of the main proposal's importance weights (above 0.7 the proposal misses
+    part of the posterior), the evaluations and the seconds of the pilot and the chains.
+    """
+    from blackjax import pareto_khat
+
+    rng = np.random.default_rng(seed)
+    dim = len(center)
+    block = max(1, min(BLOCK, chains * (warmup + draws)))
+    total = PILOT + chains * (warmup + draws)
+    desc = f"posterior ({chains} chains, independence sampler)"
+    with _progress_bar(total, desc, "point", progress) as bar:
+        t0 = time.perf_counter()
+        pilot = _StudentT(center, PROPOSAL_INFLATION**2 * np.asarray(cov))
+        Z0 = pilot.sample(rng, PILOT)
+        lp0 = _evaluate(log_density, Z0, block, bar)
+        w0 = _normalized(lp0 - pilot.log_density(Z0))
+        mean = w0 @ Z0
+        dev = Z0 - mean
+        moments = (w0[:, None] * dev).T @ dev
+        if not np.all(np.isfinite(moments)) or np.any(np.linalg.eigvalsh(moments) <= 0):
+            moments = np.asarray(cov)
+        proposal = _StudentT(mean, PROPOSAL_INFLATION**2 * (moments + 1e-12 * np.eye(dim)))
+        picked = rng.choice(PILOT, size=chains, p=w0)
+        starts, start_lp = Z0[picked], lp0[picked]
+        t_pilot = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        Z = proposal.sample(rng, chains * (warmup + draws))
+        lp = _evaluate(log_density, Z, block, bar)
+        log_w = lp - proposal.log_density(Z)
+    khat = float(pareto_khat(jnp.asarray(np.exp(log_w - np.max(log_w))), tail="upper"))
+    Z, lp, log_w = (a.reshape(chains, warmup + draws, *a.shape[1:]) for a in (Z, lp, log_w))
+    state = (starts, start_lp, start_lp - proposal.log_density(starts))
+    positions = np.empty((chains, warmup + draws, dim))
+    lps = np.empty((chains, warmup + draws))
+    accept = np.empty((chains, warmup + draws))
+    z, l_cur, w_cur = (np.array(a) for a in state)
+    for i in range(warmup + draws):
+        ratio = np.exp(np.minimum(log_w[:, i] - w_cur, 0.0))
+        take = rng.uniform(size=chains) < ratio
+        z = np.where(take[:, None], Z[:, i], z)
+        l_cur = np.where(take, lp[:, i], l_cur)
+        w_cur = np.where(take, log_w[:, i], w_cur)
+        positions[:, i], lps[:, i], accept[:, i] = z, l_cur, ratio
+    t_chains = time.perf_counter() - t0
+    keep = slice(warmup, None)
+    evaluations = total
+    return positions[:, keep], lps[:, keep], accept[:, keep], khat, evaluations, t_pilot, t_chains
+
+
+def _progress_bar(total, desc, unit, progress):
+    """A progress bar on stderr (none unless ``progress``)."""
+    return tqdm(
+        total=total, desc=desc, unit=unit, disable=not progress, file=sys.stderr, leave=False
+    )
+
+
+def _normalized(log_w):
+    w = np.exp(log_w - np.max(log_w))
+    return w / np.sum(w)
+
+
+def _at_tolerance(objective: Objective, rtol: float | None) -> Objective:
+    """The objective with solver tolerance ``rtol`` (atol ``rtol / 100``) unless ``rtol`` is
+    None, the scene sets its own, or the precision is not float64 (its default is looser)."""
+    solver = objective.scene.solver
+    if rtol is None or solver.rtol is not None or jnp.result_type(float) != jnp.float64:
+        return objective
+    if not 0 < rtol < 1:
+        raise FitError(f"rtol must be in (0, 1), got {rtol!r}")
+    scene = objective.scene.replace(solver={"rtol": rtol, "atol": solver.atol or rtol / 100})
+    return Objective(
+        scene,
+        objective.observations,
+        objective.params,
+        failure_residual=objective.failure_residual,
+        method=objective.method,
+    )
+
+
+def sample_posterior(
+    scene,
+    observations,
+    params: Sequence[str],
+    *,
+    priors: Mapping[str, object] | None = None,
+    likelihood: str = "gaussian",
+    nu: float = 4.0,
+    chains: int = 4,
+    draws: int = 1000,
+    warmup: int = WARMUP,
+    seed: int = 0,
+    fit_result: FitResult | None = None,
+    initial: Mapping[str, float] | None = None,
+    starts: int = 3,
+    jitter: float = 0.5,
+    target_accept: float = 0.9,
+    progress: bool = True,
+    method: str | None = None,
+    rtol: float | None = SAMPLING_RTOL,
+    sampler: str = "auto",
+) -> PosteriorResult:
+    """Sample the posterior of ``params`` given the observations.
+
+    **Arguments:**
+    - `scene`, `observations`, `params`, `initial`, `starts`, `method`: as for `fit`, which
+      runs first (unless `fit_result` is given) to place the chains.
+    - `priors`: ``{name: Prior or "loguniform:LO:HI" or "normal:MU:SD"}``; where not given,
+      the scene's ``[priors]`` table, else log-uniform over
+      :data:`fitting._priors.PRIOR_RANGES`.
+    - `likelihood`: ``"gaussian"`` or ``"student-t"`` (with `nu` degrees of freedom).
+    - `chains` (>= 1; 4 or more for a trustworthy R-hat), `draws`, `warmup` (per chain).
+    - `seed`: jitter of the starts and the sampler's random stream.
+    - `jitter`: the chains start this many standard errors (least squares) from the optimum.
+    - `target_accept`: the step-size adaptation's target acceptance rate.
+    - `progress`: progress bars on stderr.
+    - `sampler`: ``"auto"`` (default): the independence sampler, or HMC where its proposal
+      misses part of the posterior (Pareto k > 0.7); ``"independence"``; ``"hmc"``
+      (see :data:`SAMPLERS` and the module docstring).
+    - `rtol`: solver tolerance of the sampler's evaluations (float64; atol ``rtol / 100``),
+      where the scene leaves its own unset; None: the scene's (the fit's) tolerance.
+
+    **Returns:** a `PosteriorResult`; check ``converged`` (R-hat, divergences).
+
+    **Raises:** `FitError` for bad options, names or priors (and what `fit` raises).
+    """
+    t_start = time.perf_counter()
+    names = check_names(params)
+    if sampler not in SAMPLERS:
+        raise FitError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
+    if likelihood not in LIKELIHOODS:
+        raise FitError(f"likelihood must be one of {', '.join(LIKELIHOODS)}, got {likelihood!r}")
+    if not nu > 0:
+        raise FitError(f"nu must be > 0, got {nu!r}")
+    for label, value, least in (("chains", chains, 1), ("draws", draws, 4), ("warmup", warmup, 1)):
+        if not (isinstance(value, int) and value >= least):
+            raise FitError(f"{label} must be an integer >= {least}, got {value!r}")
+    prior_map = priors_for(names, priors, scene.priors)
+    if fit_result is None:
+        fit_result = fit(
+            scene,
+            observations,
+            names,
+            initial=initial,
+            starts=starts,
+            progress=progress,
+            method=method,
+        )
+    elif tuple(fit_result.params) != names:
+        raise FitError(f"fit_result fits {fit_result.params}, not {names}")
+    t_fit = time.perf_counter() - t_start
+    objective = fit_result.objective
+    theta = fit_result.theta
+    for n, v in zip(names, theta, strict=True):
+        if not math.isfinite(float(prior_map[n].log_density_u(n, to_unbounded([n], [v])[0]))):
+            raise FitError(
+                f"the least-squares {n} = {v:.4g} lies outside its prior {prior_map[n].describe()}"
+            )
+    sampled = _at_tolerance(objective, rtol)
+    dpdu = dphys_du(names, theta)
+    cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
+    groups, noise = _noise_groups(objective)
+    r_fit = np.asarray(fit_result.residuals)
+    log_noise = [
+        math.log(max(float(np.sqrt(np.mean(r_fit[groups == j] ** 2))), 1e-2))
+        for j in range(len(noise))
+    ]
+    result = _sample(
+        _model_residuals(sampled, names),
+        names,
+        to_unbounded(names, theta),
+        cov_u,
+        prior_map,
+        groups,
+        noise,
+        log_noise,
+        likelihood=likelihood,
+        nu=nu,
+        chains=chains,
+        draws=draws,
+        warmup=warmup,
+        seed=seed,
+        jitter=jitter,
+        target_accept=target_accept,
+        progress=progress,
+        sampler=sampler,
+        batch_log_density=_batch_log_density(
+            sampled, names, prior_map, groups, len(noise), likelihood, nu
+        ),
+    )
+    result.fit = fit_result
+    result.program = _model_values(sampled, names)
+    result.noise_groups = groups
+    result.timings = {
+        "fit": t_fit,
+        **result.timings,
+        "total": time.perf_counter() - t_start,
+    }
+    return result
+
+
+def _model_values(objective: Objective, names):
+    """``U (n, p) -> model values (n, n_data)``: cor_n continued below zero where captured,
+    as the residuals see it (one compiled program, draws as a batch)."""
+    zero, one = jnp.zeros_like(objective._value), jnp.ones_like(objective._scale)
+    return jax.jit(jax.vmap(_model_residuals(objective, names, zero, one)))
+
+
+def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
+    """Model values at the observations for ``n`` draws spread over the chains, and the same
+    with the likelihood's noise added: ``(model (n, n_data), predicted (n, n_data))``."""
+    if result.program is None or result.fit is None:
+        raise FitError("posterior_predictive needs a result of sample_posterior")
+    names, p = result.params, len(result.params)
+    flat = result.draws.reshape(-1, p)
+    noise = result.noise_draws.reshape(flat.shape[0], -1)
+    pick = np.linspace(0, len(flat) - 1, min(n, len(flat))).astype(int)
+    U = np.stack([to_unbounded(names, flat[i]) for i in pick])
+    model = np.asarray(result.program(jnp.asarray(U)))
+    objective = result.fit.objective
+    groups = result.noise_groups
+    factor = np.where(
+        groups >= 0, noise[pick][:, np.maximum(groups, 0)] if noise.size else 1.0, 1.0
+    )
+    rng = np.random.default_rng(seed)
+    if result.likelihood == "gaussian":
+        e = rng.standard_normal(model.shape)
+    else:
+        e = rng.standard_t(result.nu, model.shape)
+    return model, model + e * factor * objective.scale

@@ -1,0 +1,278 @@
+"""Reports of a posterior: JSON fields, summary lines, corner plot, predictive band, draws file."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+from jaximpact._io.paths import atomic_output
+
+from .._data import OBSERVABLES
+from .._least_squares.objective import FitError
+from .._least_squares.report import _atomic_savefig, _num, observable_label, parameter_label
+from .posterior import PosteriorResult, posterior_predictive
+
+__all__ = [
+    "plot_corner",
+    "plot_predictive",
+    "posterior_fields",
+    "posterior_summary",
+    "write_draws",
+]
+
+
+def posterior_fields(result: PosteriorResult) -> dict:
+    """What a posterior adds to the fit's JSON: ``{"params": {name: {"posterior": {...}}},
+    "posterior": {...}}`` (see :func:`add_to_result_dict`)."""
+    return {
+        "status": result.status,
+        "converged": bool(result.converged),
+        "problems": list(result.problems),
+        "likelihood": result.likelihood,
+        "nu": result.nu if result.likelihood == "student-t" else None,
+        "priors": {n: p.describe() for n, p in result.priors.items()},
+        "chains": int(result.chains),
+        "draws_per_chain": int(result.draws.shape[1]),
+        "sampler": result.sampler,
+        "pareto_k": _num(result.khat),
+        "divergences": int(result.divergences),
+        "acceptance": _num(result.acceptance),
+        "step_size": [_num(s) for s in np.atleast_1d(result.step_size)],
+        "evaluations": int(result.evaluations),
+        "correlation": [[_num(c) for c in row] for row in result.correlation],
+        "noise": {n: _stats(result.summary[n]) for n in result.noise},
+        "timings": {k: round(float(v), 4) for k, v in result.timings.items()},
+    }
+
+
+_SAMPLER_NAMES = {"independence": "independence Metropolis", "hmc": "HMC"}
+
+
+def _stats(s: dict) -> dict:
+    return {k: _num(s[k]) for k in ("mean", "median", "sd", "q05", "q95", "rhat", "ess")}
+
+
+def add_to_result_dict(d: dict, result: PosteriorResult) -> dict:
+    """The fit's JSON dict ``d`` with ``posterior`` beside each parameter's ``value`` and
+    ``stderr``, and a top-level ``posterior`` section (diagnostics, correlation of the
+    draws)."""
+    for n in result.params:
+        d["params"][n]["posterior"] = _stats(result.summary[n])
+    d["posterior"] = posterior_fields(result)
+    return d
+
+
+def posterior_summary(result: PosteriorResult) -> str:
+    """Readable lines: status, each parameter's posterior next to its least-squares value."""
+    lines = [
+        f"posterior ({result.likelihood}; {result.chains} chains x {result.draws.shape[1]} "
+        f"draws, {_SAMPLER_NAMES[result.sampler]}): "
+        + ("converged" if result.converged else "NOT CONVERGED"),
+    ]
+    for problem in result.problems:
+        lines.append(f"  because {problem}")
+    names = list(result.params) + list(result.noise)
+    width = max(len(n) for n in names)
+    lines.append("  name".ljust(width + 2) + "    median        90 % interval        R-hat   ESS")
+    for n in names:
+        s = result.summary[n]
+        lines.append(
+            f"  {n.ljust(width)} {s['median']:10.5g}  [{s['q05']:10.5g}, {s['q95']:10.5g}]  "
+            f"{s['rhat']:.4f}  {s['ess']:6.0f}"
+        )
+    if len(result.params) > 1:
+        lines.append("correlation of the draws:")
+        for n, row in zip(result.params, result.correlation, strict=True):
+            lines.append(f"  {n.ljust(width)} " + " ".join(f"{c:+.3f}" for c in row))
+    if result.sampler == "independence":
+        how = f"Pareto k {result.khat:.2f}; {result.evaluations} log-density evaluations"
+    else:
+        how = f"divergences {result.divergences}; {result.evaluations} gradient evaluations"
+    lines.append(
+        f"{how}; mean acceptance {result.acceptance:.2f}; time "
+        + ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items())
+    )
+    return "\n".join(lines)
+
+
+def import_arviz():
+    """arviz, imported quietly (it warns about its own coming refactor on import).
+
+    Raises:
+        FitError: arviz is not installed (``pip install "jaximpact[posterior]"``).
+    """
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            import arviz
+    except ImportError:
+        raise FitError('--draws needs arviz: pip install "jaximpact[posterior]"') from None
+    return arviz
+
+
+def write_draws(path, result: PosteriorResult) -> None:
+    """Write the draws as ArviZ InferenceData (netCDF), atomically.
+
+    Raises:
+        FitError: arviz is not installed (``pip install "jaximpact[posterior]"``).
+    """
+    try:
+        import arviz as az
+    except ImportError:
+        raise FitError('--draws needs arviz: pip install "jaximpact[posterior]"') from None
+    posterior = {n: result.draws[..., i] for i, n in enumerate(result.params)}
+    posterior.update({n: result.noise_draws[..., j] for j, n in enumerate(result.noise)})
+    data = az.from_dict(
+        posterior=posterior,
+        sample_stats={"lp": result.log_density},
+        attrs={"likelihood": result.likelihood, "status": result.status},
+    )
+    with atomic_output(path, "draws file") as temp:
+        data.to_netcdf(str(temp))
+
+
+def read_draws(path, names) -> np.ndarray:
+    """``(draws, p)`` draws of ``names`` from an ArviZ netCDF file (as :func:`write_draws`
+    writes), all chains together.
+
+    Raises:
+        FitError: arviz missing, not a draws file, or no draws of a name.
+    """
+    from jaximpact._io.paths import check_readable
+
+    check_readable(path, "draws file")
+    az = import_arviz()
+    try:
+        posterior = az.from_netcdf(str(path)).posterior
+    except Exception as err:  # not netCDF, or no posterior group
+        raise FitError(f"{path}: not a draws file with a posterior group ({err})") from None
+    missing = [n for n in names if n not in posterior]
+    if missing:
+        raise FitError(f"{path}: no draws of {', '.join(missing)} (it has {list(posterior)})")
+    return np.stack([np.asarray(posterior[n].values).reshape(-1) for n in names], axis=1)
+
+
+def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
+    """Corner plot of the draws (histograms on the diagonal, scatter below; log axes for
+    positive parameters), the least-squares optimum marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names, p = result.params, len(result.params)
+    flat = result.draws.reshape(-1, p)
+    pick = np.linspace(0, len(flat) - 1, min(max_points, len(flat))).astype(int)
+    best = result.fit.values if result.fit is not None else None
+    fig, axes = plt.subplots(p, p, figsize=(2.4 * p, 2.4 * p), squeeze=False)
+    for i in range(p):
+        for j in range(p):
+            ax = axes[i, j]
+            if j > i:
+                ax.axis("off")
+                continue
+            if i == j:
+                ax.hist(flat[:, i], bins=40, color="C0", alpha=0.8)
+                s = result.summary[names[i]]
+                for q in (s["q05"], s["q95"]):
+                    ax.axvline(q, color="k", ls=":", lw=1)
+                ax.set_yticks([])
+                # The marginal: median with the 90 % interval around it.
+                ax.set_title(
+                    f"{names[i]} = {s['median']:.3g}{_unit(names[i])}\n"
+                    f"90 %: [{s['q05']:.3g}, {s['q95']:.3g}]",
+                    fontsize=8,
+                )
+            else:
+                ax.plot(flat[pick, j], flat[pick, i], ".", ms=1.5, alpha=0.4, color="C0")
+                if best is not None:
+                    ax.plot(best[names[j]], best[names[i]], "r+", ms=10)
+            if i == p - 1:
+                ax.set_xlabel(parameter_label(names[j]))
+            if j == 0 and i > 0:
+                ax.set_ylabel(parameter_label(names[i]))
+    title = (
+        f"posterior ({result.chains} chains x {result.draws.shape[1]} draws); "
+        + ("converged" if result.converged else "NOT CONVERGED")
+        + ("; red +: the least-squares optimum" if best is not None and p > 1 else "")
+    )
+    # Wrapped to the figure's width (about 11 characters of 9-point text per inch), with room
+    # above the panels for every line (tight_layout alone would let the title be cut).
+    lines = textwrap.wrap(title, int(11 * 2.4 * p))
+    fig.suptitle("\n".join(lines), fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 1 - (0.1 + 0.2 * len(lines)) / (2.4 * p)))
+    _atomic_savefig(fig, Path(path))
+    plt.close(fig)
+
+
+def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
+    """Data against the posterior: the 90 % band of the model (dark) and of new data
+    (light, the model plus the likelihood's noise) at each observed impact."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    obs = result.fit.objective.observations
+    model, predicted = posterior_predictive(result, n)
+    x_is_angle = np.unique(obs.speed).size == 1
+    x = obs.angle_deg if x_is_angle else obs.speed
+    names = [k for k in OBSERVABLES if k != "captured" and np.any(obs.observable == k)]
+    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        sel = np.flatnonzero(obs.observable == name)
+        order = sel[np.argsort(x[sel], kind="stable")]
+        for band, color, label in (
+            (predicted, "C0", "90 % predictive"),
+            (model, "C1", "90 % model"),
+        ):
+            lo, hi = np.quantile(band[:, order], [0.05, 0.95], axis=0)
+            ax.vlines(
+                x[order],
+                lo,
+                hi,
+                color=color,
+                lw=4 if band is predicted else 2,
+                alpha=0.35 if band is predicted else 0.9,
+                label=label,
+            )
+        sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
+        ax.errorbar(
+            x[sel],
+            obs.value[sel],
+            yerr=sigma if np.any(sigma) else None,
+            fmt="o",
+            color="k",
+            ms=3,
+            label="data",
+        )
+        ax.set_ylabel(observable_label(name))
+        ax.set_xscale("log" if not x_is_angle else "linear")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
+    axes[0, 0].legend(fontsize=8)
+    axes[0, 0].set_title(
+        "posterior predictive: "
+        + "; ".join(
+            f"{nm} = {result.summary[nm]['median']:.3g} [{result.summary[nm]['q05']:.3g}, "
+            f"{result.summary[nm]['q95']:.3g}]{_unit(nm)}"
+            for nm in result.params
+        )
+        + " (median [90 %])",
+        fontsize=8,
+        wrap=True,
+    )
+    fig.tight_layout()
+    _atomic_savefig(fig, Path(path))
+    plt.close(fig)
+
+
+def _unit(name: str) -> str:
+    from jaximpact._model.ranges import RANGES
+
+    unit = RANGES[name].unit
+    return "" if unit == "1" else f" {unit}"

@@ -1,0 +1,286 @@
+"""The lean step loop: ``simulate``'s one engine for values and derivatives.
+
+``diffrax.diffeqsolve`` runs its step loop with machinery this simulator never uses in a batch:
+save buffers, dense-output buffers, a checkpointed while loop, a progress meter, the attempted
+step's dense output (the 7 stages) carried through every step for the event's root find. Under
+``vmap`` every piece of that state is selected, lane by lane, on every step (~500 ns per
+lane-step against ~40 ns for the vector field itself, BENCHMARKS.md "Throughput").
+
+:func:`diffeqsolve_lean` is the same integration with only what the hot case needs: an explicit
+adaptive Runge-Kutta solver (``LaneTsit5``), diffrax's step-size controller, one scalar event
+located by :func:`jaximpact._event.locate` (separation or capture), ``SaveAt(t1=True)``. It
+calls the same pieces in the same order as ``diffrax``'s loop (``solver.init``,
+``controller.init``, ``solver.step``, ``controller.adapt_step_size``, the event's sign test),
+so a lane's steps are diffrax's arithmetic; what it leaves out is only bookkeeping. Instead of
+carrying the dense output, it keeps the state and first stage before each step and, after the
+loop, repeats the step that triggered the event (the same bits) to build its interpolation.
+
+It is a plain ``lax.while_loop``; derivatives are forward tangents of the same loop, wrapped by
+``_simulate._differentiable`` (a ``custom_jvp``; ``jax.grad`` transposes it). Outputs, step
+counts and failure statuses equal ``diffeqsolve``'s bitwise in float64; in float32 the event
+locator (Newton in a bracket) and diffrax's bisection stop at different points inside the
+event tolerance (tests/test_throughput_paths.py). float32 batches run through
+:func:`solve_pool`, which refills finished lanes.
+"""
+
+import diffrax
+import equinox as eqx
+import equinox.internal as eqxi
+import jax
+import jax.numpy as jnp
+import numpy as np
+from diffrax import RESULTS
+from diffrax._solution import is_okay, is_successful
+
+from . import event as _event
+
+
+class LeanSolution(eqx.Module):
+    """The fields of ``diffrax.Solution`` that ``_solve_one`` reads."""
+
+    ts: jax.Array
+    ys: dict
+    result: RESULTS
+    stats: dict
+
+
+def supported(solver, controller, event) -> bool:
+    """Whether :func:`diffeqsolve_lean` handles this solve (else use ``diffeqsolve``)."""
+    return (
+        isinstance(solver, diffrax.AbstractAdaptiveSolver)
+        and not isinstance(solver, diffrax.AbstractImplicitSolver)
+        and isinstance(controller, diffrax.PIDController)
+        and event is not None
+        and callable(event.cond_fn)
+        and event.root_finder is not None
+    )
+
+
+def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller, max_steps):
+    """The pieces of one lane's solve: ``init(y0, args) -> state``, ``running(state)``,
+    ``step(state, args) -> state`` and ``finish(state, args) -> LeanSolution``, called in
+    that order they are :func:`diffeqsolve_lean`; :func:`solve_pool` calls them on lanes
+    that change impacts. ``y0``: an initial state (or a batch of them), for its float type."""
+    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
+    # diffrax's clip of the last step to t1 (a constant here: t1 is a Python number)
+    t1_clip_floor = np.asarray(t1, dtype)
+    for _ in range(100):
+        t1_clip_floor = np.nextafter(t1_clip_floor, np.asarray(-np.inf, dtype))
+    t0, t1, dt0 = (jnp.asarray(x, dtype) for x in (t0, t1, dt0))
+    controller = stepsize_controller
+    cond_fn = event.cond_fn
+    error_order = solver.error_order(term)
+
+    def init(y0, args):
+        tnext, controller_state = controller.init(
+            term, t0, t1, y0, dt0, args, solver.func, error_order
+        )
+        tnext = jnp.minimum(tnext, t1)
+        solver_state = solver.init(term, t0, tnext, y0, args)
+        return dict(
+            tprev=t0,
+            tnext=tnext,
+            y=y0,
+            solver_state=solver_state,
+            controller_state=controller_state,
+            num_steps=jnp.zeros((), jnp.int32),
+            result=RESULTS.where(jnp.zeros((), bool), RESULTS.successful, RESULTS.successful),
+            event=jnp.zeros((), bool),
+            value=cond_fn(t0, y0, args),
+            # the last attempted step, to repeat it in finish
+            ev_tprev=t0,
+            ev_tnext=t0,
+            ev_y=y0,
+            ev_state=solver_state,
+        )
+
+    def unfinished(s):  # diffrax's cond_fun
+        return (s["tprev"] < t1) & is_successful(s["result"])
+
+    def running(s):
+        return unfinished(s) & (s["num_steps"] < max_steps)
+
+    def step(s, args):
+        y1, y_error, _, new_state, step_result = solver.step(
+            term, s["tprev"], s["tnext"], s["y"], args, s["solver_state"], False
+        )
+        y_error = jax.tree_util.tree_map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
+        keep, tprev, tnext, _, controller_state, ctrl_result = controller.adapt_step_size(
+            s["tprev"], s["tnext"], s["y"], y1, args, y_error, error_order, s["controller_state"]
+        )
+        tprev = jnp.minimum(tprev, t1)
+        clip = tnext > t1_clip_floor
+        tnext = jnp.where(clip, jnp.where(keep, t1, tprev + 0.5 * (t1 - tprev)), tnext)
+        select = lambda a, b: jax.tree_util.tree_map(  # noqa: E731
+            lambda u, v: jnp.where(keep, u, v), a, b
+        )
+        y = select(y1, s["y"])
+        solver_state = select(new_state, s["solver_state"])  # any solver's state pytree
+        result = RESULTS.where(keep, step_result, RESULTS.successful)
+        result = RESULTS.where(is_okay(s["result"]), result, s["result"])
+        result = RESULTS.where(is_okay(result), ctrl_result, result)
+        value = cond_fn(tprev, y, args)
+        event = (jnp.sign(s["value"]) > 0) & (jnp.sign(value) <= 0)
+        result = RESULTS.where(event, RESULTS.event_occurred, result)
+        return dict(
+            tprev=tprev,
+            tnext=tnext,
+            y=y,
+            solver_state=solver_state,
+            controller_state=controller_state,
+            num_steps=s["num_steps"] + 1,
+            result=result,
+            event=event,
+            value=value,
+            ev_tprev=s["tprev"],
+            ev_tnext=s["tnext"],
+            ev_y=s["y"],
+            ev_state=s["solver_state"],
+        )
+
+    def finish(s, args):
+        result = s["result"]
+        happened = s["event"]
+
+        def root_find():
+            _, _, dense_info, _, _ = solver.step(
+                term, s["ev_tprev"], s["ev_tnext"], s["ev_y"], args, s["ev_state"], False
+            )
+            interp = solver.interpolation_cls(t0=s["ev_tprev"], t1=s["ev_tnext"], **dense_info)
+
+            def event_value(t, y):  # lanes without an event: the end of the step
+                return jnp.where(happened, cond_fn(t, y, args), s["ev_tnext"] - t)
+
+            t_event, y, found = _event.locate(
+                interp.evaluate,
+                event_value,
+                s["ev_tprev"],
+                s["ev_tnext"],
+                event.root_finder.rtol,
+                event.root_finder.atol,
+            )
+            y = jax.tree_util.tree_map(lambda a, b: jnp.where(s["num_steps"] == 0, a, b), s["y"], y)
+            return t_event, y, RESULTS.where(found, result, RESULTS.nonlinear_divergence)
+
+        tfinal, yfinal, result = jax.lax.cond(
+            eqxi.unvmap_any(happened), root_find, lambda: (s["tprev"], s["y"], result)
+        )
+        result = RESULTS.where(unfinished(s), RESULTS.max_steps_reached, result)
+        return LeanSolution(
+            ts=tfinal[None],
+            ys=jax.tree_util.tree_map(lambda x: x[None], yfinal),
+            result=result,
+            stats={"num_steps": s["num_steps"]},
+        )
+
+    return init, running, step, finish
+
+
+def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, **options):
+    """One solve (one lane; ``vmap`` it), as ``diffrax.diffeqsolve(..., throw=False)``.
+    ``options``: ``event``, ``stepsize_controller``, ``max_steps``."""
+    init, running, step, finish = lane_functions(term, solver, t0, t1, dt0, y0, **options)
+    s = jax.lax.while_loop(running, lambda s: step(s, args), init(y0, args))
+    return finish(s, args)
+
+
+# Refill the lanes once this fraction of them has finished: often enough that few lanes idle,
+# rarely enough that the refill (a gather, one vector-field evaluation per lane for the new
+# impacts' first stage, a scatter of the finished lanes' states) costs little.
+REFILL_FRACTION = 1 / 8
+
+
+def solve_pool(term, solver, t0, t1, dt0, y0s, args_s, *, lanes, tail_lanes, **options):
+    """Solve a batch of impacts (the leading axis of ``y0s`` and ``args_s``) with ``lanes``
+    lane slots that each take the next impact when theirs has finished.
+
+    A vmapped solve runs every lane for as many steps as its slowest impact needs (in the
+    near-capture band, float32, a few grazing impacts take 40x the median steps). Here the
+    lanes are stepped together as in ``vmap`` (a finished lane's state is kept, as the batched
+    while loop keeps it); whenever a ``REFILL_FRACTION`` of them has finished, their states are
+    stored and they start the next impacts; once no impact is left to start and at most
+    ``tail_lanes`` still run, those go on in ``tail_lanes`` lanes. Every operation is
+    elementwise over lanes (``lanes`` and ``tail_lanes`` whole numbers of SIMD lane groups) and
+    every impact starts through the same refill code, so an impact's bits do not depend on its
+    lane or on when it started. ``options``: as :func:`diffeqsolve_lean`'s. Returns the
+    batch's ``LeanSolution``.
+    """
+    size = jax.tree_util.tree_leaves(y0s)[0].shape[0]
+    init, running, step, finish = lane_functions(term, solver, t0, t1, dt0, y0s, **options)
+    take = lambda tree, i: jax.tree_util.tree_map(lambda x: x[i], tree)  # noqa: E731
+
+    def where(mask, a, b):
+        return jax.tree_util.tree_map(
+            lambda u, v: jnp.where(mask.reshape(mask.shape + (1,) * (u.ndim - 1)), u, v), a, b
+        )
+
+    def store(records, states, index, mask):  # rows `index` of records <- states where mask
+        rows = jnp.where(mask, index, size)  # out of range: dropped
+        return jax.tree_util.tree_map(lambda r, x: r.at[rows].set(x, mode="drop"), records, states)
+
+    index = jnp.arange(lanes)
+    args = take(args_s, index)
+    states = jax.vmap(init)(take(y0s, index), args)
+    records = jax.tree_util.tree_map(lambda x: jnp.zeros((size,) + x.shape[1:], x.dtype), states)
+    # every impact starts through the refill below (one compiled form of its first stage)
+    carry = (states, args, index, jnp.zeros(lanes, bool), jnp.asarray(0), records)
+
+    def finished_of(states, active):
+        return active & ~jax.vmap(running)(states)
+
+    def refill_due(states, active, next_impact):
+        n_free = jnp.sum(finished_of(states, active) | ~active)
+        return (next_impact < size) & (n_free >= REFILL_FRACTION * lanes)
+
+    def tail_due(states, active, next_impact):  # few lanes left: go on with fewer lanes
+        n_running = jnp.sum(active & jax.vmap(running)(states))
+        return (next_impact >= size) & (n_running <= tail_lanes)
+
+    def cond(carry):
+        states, _, _, active, next_impact, _ = carry
+        busy = jnp.any(active & jax.vmap(running)(states)) | (next_impact < size)
+        return busy & ~tail_due(states, active, next_impact)
+
+    def step_lanes(states, args, active):
+        go = active & jax.vmap(running)(states)
+        return where(go, jax.vmap(step)(states, args), states)
+
+    def body(carry):
+        states, args, index, active, next_impact, records = carry
+
+        # step the lanes until a refill is due (the inner loop carries only the lanes: the
+        # records of the whole batch are touched once per refill)
+        def stepping(states):
+            go = jnp.any(active & jax.vmap(running)(states))
+            go = go & ~refill_due(states, active, next_impact)
+            return go & ~tail_due(states, active, next_impact)
+
+        states = jax.lax.while_loop(stepping, lambda x: step_lanes(x, args, active), states)
+        finished = finished_of(states, active)
+        free = finished | ~active
+        records = store(records, states, index, finished)
+        new = next_impact + jnp.cumsum(free) - 1
+        fill = free & (new < size)
+        rows = jnp.minimum(new, size - 1)
+        new_args = take(args_s, rows)
+        states = where(fill, jax.vmap(init)(take(y0s, rows), new_args), states)
+        args = where(fill, new_args, args)
+        index = jnp.where(fill, new, index)
+        active = (active & ~finished) | fill
+        next_impact = jnp.minimum(next_impact + jnp.sum(free), size)
+        return states, args, index, active, next_impact, records
+
+    states, args, index, active, _, records = jax.lax.while_loop(cond, body, carry)
+    # The tail: the impacts still running, gathered into `tail_lanes` lanes (the slowest
+    # impacts of a batch would otherwise keep every lane stepping).
+    records = store(records, states, index, finished_of(states, active))
+    active = active & jax.vmap(running)(states)
+    order = jnp.argsort(~active, stable=True)[:tail_lanes]  # the running lanes first
+    states, args, index, active = take((states, args, index, active), order)
+    states = jax.lax.while_loop(
+        lambda x: jnp.any(active & jax.vmap(running)(x)),
+        lambda x: step_lanes(x, args, active),
+        states,
+    )
+    records = store(records, states, index, active)
+    return jax.vmap(finish)(records, args_s)

@@ -1,0 +1,247 @@
+"""The equations of motion, assembled from only the terms a scene needs.
+
+``Terms`` is the static description of what is compiled: a normal-only impact has the states
+``n, ndot`` (plus its ledger) and never evaluates friction or moments; a scene without adhesion
+never evaluates the ring. Everything here works in Hertz units (mass 1, see ``_units.py``).
+
+State (a dict of scalars), by what the terms need:
+- always: ``n``, ``ndot``, ``peak`` (integral of max(ndot, 0): the peak overlap, since the
+  sphere approaches only once before it separates or is declared captured) and
+  ``loss_hertz_damping``;
+- adhesion: ``loss_adhesion_damping``;
+- tangential: ``vt``, ``loss_friction`` and ``slide_time`` (the time until rolling first starts);
+- rotation: ``w``; rolling moments: ``loss_rolling``;
+- the Mindlin tangential spring (``Terms.mindlin``): ``xi``, its elastic displacement.
+
+With ``Terms.ledger = False`` (``[solver] outputs = "rebound"``) only the motion ``n, ndot, vt,
+w`` is integrated: every scalar state costs the vmapped step loop about as much as the force
+laws, so dropping the six bookkeeping states roughly halves the cost of a sweep or a fit.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from . import laws
+from .units import ScaledParameters
+
+
+class Terms(eqx.Module):
+    """Static switches: which states and force terms are compiled."""
+
+    tangential: bool = eqx.field(static=True)
+    rotation: bool = eqx.field(static=True)
+    adhesion: bool = eqx.field(static=True)
+    rolling_moments: str = eqx.field(static=True)  # "none" | "analytical" | "lambda"
+    friction_load: str = eqx.field(static=True)  # "net" | "hertz"
+    slip_width: float = eqx.field(static=True)
+    ring_width: float = eqx.field(static=True)
+    ledger: bool = eqx.field(static=True, default=True)  # losses, peak overlap, roll time
+    # Numerical settings of the smooth model (Hertz units; see docs/physics.md, "Derivatives"):
+    # the overlap below which the contact is treated analytically, and the rate of the linear
+    # pull toward rolling inside the slip width.
+    contact_floor: float = eqx.field(static=True, default=0.0)
+    slip_relaxation: float = eqx.field(static=True, default=0.0)
+    # model.tangential = "mindlin": the elastic tangential spring (state xi) replaces the rigid
+    # friction law; cap_width is its regularization width at the Coulomb cap (fraction of it).
+    mindlin: bool = eqx.field(static=True, default=False)
+    cap_width: float = eqx.field(static=True, default=0.0)
+
+    @property
+    def has_moments(self):
+        return self.rotation and self.rolling_moments != "none"
+
+
+def initial_state(terms: Terms, vt0, w0, dtype):
+    zero = jnp.zeros((), dtype)
+    y = {"n": zero, "ndot": jnp.ones((), dtype), "peak": zero, "loss_hertz_damping": zero}
+    if terms.adhesion:
+        y["loss_adhesion_damping"] = zero
+    if terms.tangential:
+        y.update(vt=jnp.asarray(vt0, dtype), loss_friction=zero, slide_time=zero)
+        if terms.mindlin:
+            y["xi"] = zero
+        if terms.rotation:
+            y["w"] = jnp.asarray(w0, dtype)
+            if terms.has_moments:
+                y["loss_rolling"] = zero
+    if not terms.ledger:
+        y = {k: v for k, v in y.items() if k in MOTION}
+    return y
+
+
+MOTION = ("n", "ndot", "vt", "w", "xi")
+
+
+def normal_energy(terms: Terms, p: ScaledParameters, y):
+    """``ndot^2/2 + V(n)``: it never increases without spin, and ``< 0`` means capture."""
+    e = 0.5 * y["ndot"] ** 2 + laws.hertz_potential(y["n"], p.radius, p.K)
+    if terms.adhesion:
+        e = e + laws.adhesion_potential(y["n"], p.radius, p.f0)
+    return e
+
+
+def capture_margin(terms: Terms, p: ScaledParameters, y):
+    """The normal energy divided by the sum of its terms' sizes: capture when it is ``< 0``.
+
+    Same sign as :func:`normal_energy`, so the same event, but of order one: when adhesion
+    dominates a slow impact the energy is a difference of terms much larger than one in Hertz
+    units, and in float32 its rounding noise exceeded the root finder's tolerance, so the
+    capture time was never found (``solver_error`` on 19 of 20,000 float32 impacts at
+    0.02-0.3 m/s; issue 12). Relative to the terms' sizes the noise is a few ulp.
+    """
+    kinetic = 0.5 * y["ndot"] ** 2
+    hertz = laws.hertz_potential(y["n"], p.radius, p.K)
+    adhesion = laws.adhesion_potential(y["n"], p.radius, p.f0)  # <= 0
+    return (kinetic + hertz + adhesion) / (kinetic + hertz - adhesion)
+
+
+def mechanical_energy(terms: Terms, p: ScaledParameters, y):
+    """Normal energy plus tangential and rotational kinetic energy (and the Mindlin spring's)."""
+    e = normal_energy(terms, p, y)
+    if terms.tangential:
+        e = e + 0.5 * y["vt"] ** 2
+        if terms.rotation:
+            e = e + 0.5 * p.inertia * y["w"] ** 2
+        if terms.mindlin:
+            e = e + tangential_energy(terms, p, y)
+    return e
+
+
+def tangential_energy(terms: Terms, p: ScaledParameters, y):
+    """Energy of the Mindlin spring, ``k_t(n) xi^2 / 2``: the potential of both its forces."""
+    k_t = laws.mindlin_stiffness(y["n"], p.radius, p.G_star, terms.contact_floor)
+    return 0.5 * k_t * y["xi"] ** 2
+
+
+def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w):
+    """The normal forces (and the ring's peeling moment ``M_A``, or None)."""
+    f = {}
+    f["F_H"] = laws.hertz_force(n, p.radius, p.K)
+    f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
+    F_n = f["F_H"] + f["F_HD"]
+    M_A = None
+    if terms.adhesion:
+        # The spin enters the ring only with the analytical moments, where the ring also
+        # yields M_A; otherwise the spin-free ring keeps the adhesion damping dissipative.
+        ring_spin = w if terms.rolling_moments == "analytical" else jnp.zeros_like(w)
+        f["F_A"] = laws.adhesion_force(n, p.radius, p.f0, terms.contact_floor)
+        f["F_AD"], M_A = laws.adhesion_damping(
+            n, ndot, ring_spin, p.radius, p.f0, p.C_A, terms.ring_width, terms.contact_floor
+        )
+        F_n = F_n + f["F_A"] + f["F_AD"]
+    f["F_n"] = F_n
+    return f, M_A
+
+
+def _friction_load(terms: Terms, f):
+    return jnp.abs(f["F_n"]) if terms.friction_load == "net" else -f["F_H"]
+
+
+def contact_loads(terms: Terms, p: ScaledParameters, y):
+    """Every force and moment on the sphere at state ``y`` (a dict; absent terms are left out)."""
+    n, ndot = y["n"], y["ndot"]
+    w = y["w"] if (terms.tangential and terms.rotation) else jnp.zeros_like(n)
+    f, M_A = _normal_loads(terms, p, n, ndot, w)
+    if not terms.tangential:
+        return f
+    M = jnp.zeros_like(n)
+    if terms.has_moments:
+        if terms.rolling_moments == "analytical":
+            f["M_H"] = laws.hertz_rolling_moment(n, w, p.radius, p.K, p.C_H)
+            f["M_A"] = M_A if terms.adhesion else jnp.zeros_like(n)
+            M = f["M_A"] + f["M_H"]
+        else:
+            M = laws.lambda_moment(n, w, p.radius, p.C_A, p.lam, terms.contact_floor)
+        f["M_roll"] = M
+    if terms.mindlin:
+        return _mindlin_loads(terms, p, y, f, w, M)
+    if terms.friction_load == "net":
+        load = jnp.abs(f["F_n"])
+    else:
+        load = -f["F_H"]
+    slip = y["vt"] - p.radius * w
+    # Friction that keeps s = 0 in pure rolling: from s' = F_t (1/m + r^2/(m k^2)) - r M/(m k^2).
+    hold = p.radius * M / (p.inertia + p.radius**2) if terms.has_moments else jnp.zeros_like(n)
+    # The pull toward rolling acts on the slip through the effective mass of s' = F_t / m_eff,
+    # so that the slip relaxes at the same rate with or without rotation.
+    m_eff = p.inertia / (p.inertia + p.radius**2) if terms.rotation else 1.0
+    f["slip"] = slip
+    f["F_t"] = laws.friction_force(
+        slip, load, p.friction, hold, terms.slip_width, terms.slip_relaxation * m_eff
+    )
+    return f
+
+
+def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, w, M):
+    """The Mindlin spring: tangential force ``-k_t xi``, its normal force and the slip rate.
+
+    The spring has the potential ``U = k_t(n) xi^2 / 2``, so besides the tangential force it
+    pushes the sphere out with ``-dU/dn = -k_t'(n) xi^2 / 2`` (at most ~0.2 f^2 of the normal
+    force); with it the spring's energy is returned to the motion by separation and the
+    ledger closes with the slip loss alone. The Coulomb cap ``f N`` takes the load without that
+    force (as the reference does). See docs/physics.md, "Tangential compliance".
+    """
+    n, ndot, xi = y["n"], y["ndot"], y["xi"]
+    floor = terms.contact_floor
+    k_t = laws.mindlin_stiffness(n, p.radius, p.G_star, floor)
+    dk_dn = laws.mindlin_stiffness_slope(n, p.radius, p.G_star, floor)
+    f["F_U"] = -0.5 * dk_dn * xi * xi
+    f["F_n"] = f["F_n"] + f["F_U"]
+    F_t = -k_t * xi
+    wdot = (-p.radius * F_t + M) / p.inertia if terms.rotation else jnp.zeros_like(n)
+
+    def limit_of(n_, ndot_, w_):
+        return p.friction * _friction_load(terms, _normal_loads(terms, p, n_, ndot_, w_)[0])
+
+    limit, limit_rate = jax.jvp(limit_of, (n, ndot, w), (ndot, f["F_n"], wdot))
+    # c = f N / k_t and its rate (k_t > 0 above -floor; outside, the cap is irrelevant).
+    ok = k_t > 0
+    safe_k = jnp.where(ok, k_t, 1.0)
+    cap_rate = jnp.where(ok, (limit_rate - limit * dk_dn * ndot / safe_k) / safe_k, 0.0)
+    slip = y["vt"] - p.radius * w
+    f["slip"] = slip
+    f["F_t"] = F_t
+    f["k_t"] = k_t
+    f["slip_rate"] = laws.mindlin_slip_rate(
+        xi, slip, limit, k_t, cap_rate, terms.cap_width, terms.slip_width
+    )
+    return f
+
+
+class ImpactField(eqx.Module):
+    """The ODE vector field ``dy/dt`` of one impact, for ``diffrax.ODETerm``."""
+
+    terms: Terms
+
+    def __call__(self, t, y, p: ScaledParameters):
+        terms = self.terms
+        f = contact_loads(terms, p, y)
+        ndot = y["ndot"]
+        dy = {
+            "n": ndot,
+            "ndot": f["F_n"],
+            "peak": jnp.maximum(ndot, 0.0),
+            "loss_hertz_damping": -f["F_HD"] * ndot,
+        }
+        if terms.adhesion:
+            dy["loss_adhesion_damping"] = -f["F_AD"] * ndot
+        if terms.tangential:
+            dy["vt"] = f["F_t"]
+            if terms.mindlin:
+                dy["xi"] = f["slip"] - f["slip_rate"]
+                dy["loss_friction"] = f["k_t"] * y["xi"] * f["slip_rate"]
+            else:
+                dy["loss_friction"] = -f["F_t"] * f["slip"]
+            # Latch: slide_time follows t until the slip first falls below the width, then
+            # stays. (Excluded from error control: its derivative jumps once, at that moment.)
+            still_sliding = (jnp.abs(f["slip"]) > terms.slip_width) & (
+                y.get("slide_time", t) >= t * (1 - 1e-4) - 1e-6
+            )
+            dy["slide_time"] = jnp.where(still_sliding, 1.0, 0.0).astype(ndot.dtype)
+            if terms.rotation:
+                M = f.get("M_roll", jnp.zeros_like(ndot))
+                dy["w"] = (-p.radius * f["F_t"] + M) / p.inertia
+                if terms.has_moments:
+                    dy["loss_rolling"] = -M * y["w"]
+        return {k: dy[k] for k in y}  # the states this impact carries (see Terms.ledger)

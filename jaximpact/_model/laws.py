@@ -1,0 +1,169 @@
+"""Force and moment laws of the Brach–Dunn–Cheng model, one function per law.
+
+The laws are written in physical form and hold in any consistent unit system: the simulator
+evaluates them in Hertz units (see ``_units.py``), the tests in SI. Signs follow
+CONVENTIONS: ``n`` is the overlap (> 0 in contact), ``ndot > 0`` approaching, normal forces are
+positive toward the surface, the spin ``w`` is signed so that ``tdot == r*w`` is rolling, and
+the slip is ``s = tdot - r*w``. Every law is zero for ``n <= 0`` (free flight).
+"""
+
+import jax.numpy as jnp
+
+from .safe import safe_pow, safe_sqrt, smooth_sign_flat, smooth_step_flat
+
+
+def contact_radius(n, radius, n_min=0.0):
+    """Hertz contact radius ``a = sqrt(r n)`` (0 out of contact).
+
+    ``n_min > 0`` continues ``a`` below ``n_min`` along its tangent there (down to 0 at
+    ``n = -n_min``): the simulator integrates only ``n >= n_min`` and treats the thin shell
+    below analytically, but Runge-Kutta stages of the last step overshoot into it, where the
+    infinite slope of ``sqrt`` at 0 would wreck the derivatives of the step (see docs/physics.md).
+    """
+    if n_min <= 0.0:
+        return safe_sqrt(radius * n)
+    root = jnp.sqrt(n_min)
+    tangent = jnp.maximum((n + n_min) / (2.0 * root), 0.0)
+    return jnp.sqrt(radius) * jnp.where(n > n_min, jnp.sqrt(jnp.maximum(n, n_min)), tangent)
+
+
+def hertz_force(n, radius, K):
+    """Hertz restoring force ``F_H = -K sqrt(r) n^1.5`` (eq. 2; negative = repulsive)."""
+    return -K * jnp.sqrt(radius) * safe_pow(n, 1.5)
+
+
+def hertz_damping_force(n, ndot, radius, K, C_H):
+    """Hertzian damping ``F_HD = -K sqrt(r) n^1.5 C_H ndot`` (eq. 2); power ``F_HD ndot <= 0``."""
+    return hertz_force(n, radius, K) * C_H * ndot
+
+
+def adhesion_force(n, radius, f0, n_min=0.0):
+    """Ring adhesion ``F_A = 2 pi a f0`` (eq. 2), attractive. (``n_min``: see contact_radius.)"""
+    return 2.0 * jnp.pi * contact_radius(n, radius, n_min) * f0
+
+
+def hertz_potential(n, radius, K):
+    """Potential energy of the Hertz force, ``(2/5) K sqrt(r) n^2.5``."""
+    return 0.4 * K * jnp.sqrt(radius) * safe_pow(n, 2.5)
+
+
+def adhesion_potential(n, radius, f0):
+    """Potential energy of the ring adhesion force, ``-(4/3) pi f0 sqrt(r) n^1.5``."""
+    return -(4.0 / 3.0) * jnp.pi * f0 * jnp.sqrt(radius) * safe_pow(n, 1.5)
+
+
+def ring_integrals(ndot, b, width=0.0):
+    """Separating part of the adhesion ring, integrated around the contact edge.
+
+    The ring point at angle ``alpha`` moves normally at ``u = ndot + b cos(alpha)`` with
+    ``b = w a``. Returns ``(I0, I1)`` with ``I0 = int max(-u, 0) dalpha`` and
+    ``I1 = int max(-u, 0) cos(alpha) dalpha`` over ``[0, 2 pi)`` (closed form; derivation in
+    docs/physics.md). ``I1 <= 0`` for ``b > 0``: the peeling moment opposes the spin.
+
+    ``width > 0`` regularizes the switch at ``|ndot| = |b|`` (which becomes a plain kink at
+    ``ndot = 0`` when ``b = 0``): ``b`` is replaced by ``b_eff = sqrt(b^2 + width^2)`` and
+    ``ndot`` by ``ndot + width^2 / b_eff``. That shift keeps the regularized ring dissipative
+    (power ``ndot*F + w*M <= 0`` exactly) and vanishes for ``|b| >> width``.
+    """
+    b_eff = safe_sqrt(b * b + width * width)
+    safe_b_eff = jnp.where(b_eff > 0, b_eff, 1.0)
+    u0 = ndot + jnp.where(b_eff > 0, width * width / safe_b_eff, 0.0)
+    # c = cos(beta), where beta is the angle at which the ring point has u = 0; clipping c to
+    # [-1, 1] makes the one formula cover the "all approaching" (c = -1) and "all separating"
+    # (c = 1) regimes too.
+    c = jnp.clip(-u0 / safe_b_eff, -1.0, 1.0)
+    c = jnp.where(b_eff > 0, c, jnp.where(u0 < 0, 1.0, -1.0))
+    s = safe_sqrt(1.0 - c * c)
+    beta = jnp.arctan2(s, c)
+    i0 = -2.0 * u0 * (jnp.pi - beta) + 2.0 * b_eff * s
+    i1 = -b * (c * s + jnp.pi - beta)
+    return i0, i1
+
+
+def adhesion_damping(n, ndot, w, radius, f0, C_A, width=0.0, n_min=0.0):
+    """Adhesion damping of the separating ring: normal force ``F_AD`` and peeling moment ``M_A``.
+
+    Line force ``f0 C_A (-u)`` (attractive) where the ring point separates (``u < 0``). Limits:
+    ``w = 0`` gives ``2 pi a f0 C_A max(-ndot, 0)``; a wholly separating ring gives
+    ``M_A = -pi f0 C_A a^3 w`` (eq. 12). This replaces the printed ``2 pi a f0 C_A ndot``,
+    which adds energy (CONVENTIONS erratum). Pass ``w = 0`` for the spin-free ring.
+    """
+    a = contact_radius(n, radius, n_min)
+    i0, i1 = ring_integrals(ndot, w * a, width)
+    return f0 * C_A * a * i0, f0 * C_A * a * a * i1
+
+
+def hertz_rolling_moment(n, w, radius, K, C_H):
+    """Hertzian rolling-resistance moment ``M_H = -(K/5) sqrt(n/r) C_H a^4 w`` (eq. 18)."""
+    # a^4 sqrt(n/r) = r^1.5 n^2.5: written without the square root of a.
+    return -(K / 5.0) * C_H * radius**1.5 * safe_pow(n, 2.5) * w
+
+
+def lambda_moment(n, w, radius, C_A, lam, n_min=0.0):
+    """Constant-lambda rolling moment ``g = -lambda C_A a w`` (eq. 19-22), opposing the spin."""
+    return -lam * C_A * contact_radius(n, radius, n_min) * w
+
+
+def friction_force(slip, load, friction, hold_force, width, restoring=0.0):
+    """Regularized Coulomb friction on the sphere at the contact point.
+
+    Exact law: ``-f N sign(s)`` while sliding; in pure rolling (``s = 0``) the force that keeps
+    ``s = 0``, ``hold_force``, bounded by ``f N``. Regularized with the flat-zero switch
+    ``p = tanh((s/width)^2)``::
+
+        F_t = (1 - p) clip(hold, -f N, f N) - f N sign(s) p
+
+    At ``s = 0`` this is exactly the holding force, so pure rolling is kept without a stiff
+    restoring term; ``|s| > 3 width`` gives Coulomb sliding to 1e-7. The power ``F_t s`` is
+    ``<= 0`` whenever ``hold_force = 0`` (no rolling moments).
+
+    ``restoring >= 0`` adds ``-restoring * s`` to the holding force (still bounded by ``f N``):
+    a mild linear pull toward rolling. Without it the law is flat at ``s = 0`` (zero slope), so
+    a derivative taken at zero slip sees no friction at all: at normal incidence
+    ``d omega_out / d omega0`` came out 1 instead of the exact 2/7. The pull only dissipates
+    (its power is ``-restoring s^2 (1 - p) <= 0``).
+    """
+    limit = friction * load
+    z = slip / width
+    hold = jnp.clip(hold_force - restoring * slip, -limit, limit)
+    return (1.0 - smooth_step_flat(z)) * hold - limit * smooth_sign_flat(z)
+
+
+def mindlin_stiffness(n, radius, G_star, n_min=0.0):
+    """Tangential (Mindlin) stiffness of the contact, ``k_t = 8 G* a`` with ``a = sqrt(r n)``.
+
+    Mindlin (1949): the no-slip tangential compliance of a circular Hertz contact of radius
+    ``a``. (``n_min``: the continuation below the contact floor, see contact_radius.)
+    """
+    return 8.0 * G_star * contact_radius(n, radius, n_min)
+
+
+def mindlin_stiffness_slope(n, radius, G_star, n_min=0.0):
+    """``d k_t / d n = 8 G* da/dn`` (``da/dn = sqrt(r) / (2 sqrt(n))``, continued as ``a``)."""
+    if n_min <= 0.0:
+        positive = n > 0
+        return jnp.where(positive, 4.0 * G_star * jnp.sqrt(radius / jnp.where(positive, n, 1.0)), 0)
+    slope = 4.0 * G_star * jnp.sqrt(radius / jnp.maximum(n, n_min))
+    return jnp.where(n > -n_min, slope, 0.0)
+
+
+def mindlin_slip_rate(xi, slip, load_limit, k_t, cap_rate, cap_width, slip_width):
+    """Rate at which the contact slips at the Coulomb cap: ``xi' = slip - rate`` (Hertz units).
+
+    ``xi`` is the elastic tangential displacement, the spring force on the sphere ``-k_t xi``
+    and the cap ``|k_t xi| <= f N = load_limit``, i.e. ``|xi| <= c = f N / k_t``; ``cap_rate``
+    is ``dc/dt``. Exact rule (elastic-perfectly plastic, the history spring of DEM codes):
+    below the cap the contact sticks (``xi' = slip``); at the cap it slips just enough that
+    ``|xi|`` follows ``c``, i.e. ``rate = sign(xi) max(slip sign(xi) - c', 0)``. Regularized:
+    the switch ``phi`` rises from 0 to exactly 1 over the last ``cap_width`` (a fraction of
+    ``c``) below the cap, with the flat-zero step of the friction law; ``max(x, 0)`` becomes
+    ``(x + sqrt(x^2 + slip_width^2)) / 2``. Both keep the dissipated power
+    ``k_t xi rate = k_t |xi| phi max(...)`` >= 0 and ``|xi| <= c`` once reached.
+    """
+    force = jnp.abs(k_t * xi)
+    ok = load_limit > 0
+    ratio = jnp.where(ok, force / jnp.where(ok, load_limit, 1.0), 2.0)
+    phi = 1.0 - smooth_step_flat(jnp.maximum(1.0 - ratio, 0.0) / cap_width)
+    direction = jnp.sign(xi)
+    drive = slip * direction - cap_rate
+    return direction * phi * 0.5 * (drive + jnp.sqrt(drive * drive + slip_width * slip_width))

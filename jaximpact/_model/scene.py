@@ -1,0 +1,417 @@
+"""The ``Scene``: particle, contact, model switches, default impact and solver settings.
+
+The structure mirrors the TOML scene file section by section. Float parameters are JAX array
+leaves (differentiable, no recompilation when their values change); switches and solver
+settings are static fields (they decide which terms and states are compiled).
+"""
+
+import math
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .ranges import RANGES, range_text
+
+INERTIA_FACTOR = 0.4  # k^2 / r^2 of a solid sphere (CONVENTIONS)
+
+RollingMoments = Literal["none", "analytical", "lambda"]
+FrictionLoad = Literal["net", "hertz"]
+TANGENTIAL_MODELS = ("rigid", "mindlin")
+SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
+
+
+class SceneError(ValueError):
+    """An invalid scene value; the message names the field and the allowed range."""
+
+
+def _array(x):
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+def _numbers(field: str):
+    """The converter of a float field: refuses text (``"1.0"`` is not silently a number),
+    booleans and empty arrays by the field's name, then makes a float array."""
+
+    def convert(x):
+        _argument_shape(field, x)
+        return _array(x)
+
+    return convert
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_range(
+    name, value, *, positive=False, nonnegative=False, lower=None, upper=None, upper_inclusive=True
+):
+    """Raise ``SceneError`` naming ``name`` if a concrete value is non-finite or out of range.
+
+    Traced values are not checked (they are checked where they were concrete, e.g. on loading).
+    """
+    if not _is_concrete(value):
+        return
+    v = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(v)):
+        raise SceneError(f"{name} must be finite, got {_show(v)}")
+    if positive and np.any(v <= 0):
+        raise SceneError(f"{name} must be > 0, got {_show(v)}")
+    if nonnegative and np.any(v < 0):
+        raise SceneError(f"{name} must be >= 0, got {_show(v)}")
+    if lower is not None and np.any(v <= lower):
+        raise SceneError(
+            f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, got {_show(v)}"
+        )
+    if upper is not None and np.any(v > upper if upper_inclusive else v >= upper):
+        raise SceneError(
+            f"{name} must be in ({lower}, {upper}{']' if upper_inclusive else ')'}, got {_show(v)}"
+        )
+
+
+def check_input(field: str, name: str, value) -> None:
+    """Raise ``SceneError`` naming ``field`` if a concrete value is outside the documented
+    range of input ``name`` (``jaximpact._ranges.RANGES``; docs/input_ranges.md).
+
+    Traced values are not checked (they are checked where they were concrete).
+    """
+    if not _is_concrete(value):
+        return
+    v = np.asarray(value, dtype=float)
+    ok = RANGES[name].contains(v)
+    if not np.all(ok):
+        bad = np.flatnonzero(~np.ravel(ok))[0]
+        got = repr(float(v)) if v.ndim == 0 else f"{float(v.ravel()[bad])!r} (element {bad})"
+        raise SceneError(f"{range_text(name, field)} (docs/input_ranges.md), got {got}")
+
+
+def _show(v):
+    v = np.asarray(v)
+    if v.ndim == 0:
+        return repr(float(v))
+    return f"an array with min {float(v.min())!r}, max {float(v.max())!r}"
+
+
+class Particle(eqx.Module):
+    """The sphere. **Arguments:** `radius` (m, > 0), `density` (kg/m^3, > 0)."""
+
+    radius: jax.Array = eqx.field(converter=_numbers("particle.radius"))
+    density: jax.Array = eqx.field(converter=_numbers("particle.density"))
+
+    def __check_init__(self):
+        check_input("particle.radius", "radius", self.radius)
+        check_input("particle.density", "density", self.density)
+
+    @property
+    def mass(self):
+        """Mass ``rho 4/3 pi r^3`` (kg)."""
+        return self.density * (4.0 / 3.0) * jnp.pi * self.radius**3
+
+
+class Contact(eqx.Module):
+    """Contact constants of the sphere-surface pair.
+
+    **Arguments:**
+    - `K`: Hertz stiffness (Pa, > 0), ``K = 4 / (3 pi (k1 + k2))`` (eq. 3-4), i.e. ``4 E*/3``.
+    - `f0`: adhesion ring line force (N/m, >= 0).
+    - `C_A`, `C_H`: adhesion and Hertzian damping constants (s/m, >= 0).
+    - `friction`: Coulomb coefficient (>= 0).
+    - `G_star`: effective shear modulus (Pa, > 0) of the tangential (Mindlin) stiffness
+      ``k_t = 8 G* a``, ``1/G* = (2 - nu1)/G1 + (2 - nu2)/G2``; used only with
+      ``model.tangential = "mindlin"`` (0, the default, means "not given").
+    """
+
+    K: jax.Array = eqx.field(converter=_numbers("contact.K"))
+    f0: jax.Array = eqx.field(converter=_numbers("contact.f0"))
+    C_A: jax.Array = eqx.field(converter=_numbers("contact.C_A"))
+    C_H: jax.Array = eqx.field(converter=_numbers("contact.C_H"))
+    friction: jax.Array = eqx.field(converter=_numbers("contact.friction"))
+    G_star: jax.Array = eqx.field(converter=_numbers("contact.G_star"), default=0.0)
+
+    def __check_init__(self):
+        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star"):
+            check_input(f"contact.{name}", name, getattr(self, name))
+
+
+class Model(eqx.Module):
+    """Which physics is in the model.
+
+    **Arguments:**
+    - `rotation`: spin degree of freedom (``False``: the sphere slides without turning).
+    - `adhesion`: ring adhesion force and adhesion damping.
+    - `rolling_moments`: ``"none"``, ``"analytical"`` (peeling ``M_A`` + Hertzian ``M_H``,
+      eq. 12, 18) or ``"lambda"`` (constant-lambda law ``-lambda C_A a w``, eq. 19-22).
+    - `friction_load`: ``"net"`` (``|F_n|``, eq. 6, default) or ``"hertz"`` (compressive Hertz
+      force ``K sqrt(r) n^1.5``).
+    - `lambda_`: the lambda of the constant-lambda law (N m, >= 0); TOML key ``lambda``.
+    - `tangential`: ``"rigid"`` (default: Coulomb friction on a rigid contact) or ``"mindlin"``
+      (an elastic tangential spring ``8 G* a`` capped by Coulomb friction; needs
+      ``contact.G_star``; docs/physics.md, "Tangential compliance").
+    """
+
+    rotation: bool = eqx.field(static=True, default=True)
+    adhesion: bool = eqx.field(static=True, default=True)
+    rolling_moments: str = eqx.field(static=True, default="analytical")
+    friction_load: str = eqx.field(static=True, default="net")
+    lambda_: jax.Array = eqx.field(converter=_numbers("model.lambda"), default=0.0)
+    tangential: str = eqx.field(static=True, default="rigid")
+
+    def __check_init__(self):
+        if self.tangential not in TANGENTIAL_MODELS:
+            raise SceneError(
+                f"model.tangential must be 'rigid' or 'mindlin', got {self.tangential!r}"
+            )
+        if self.rolling_moments not in ("none", "analytical", "lambda"):
+            raise SceneError(
+                "model.rolling_moments must be one of 'none', 'analytical', "
+                f"'lambda', got {self.rolling_moments!r}"
+            )
+        if self.friction_load not in ("net", "hertz"):
+            raise SceneError(
+                f"model.friction_load must be 'net' or 'hertz', got {self.friction_load!r}"
+            )
+        for name in ("rotation", "adhesion"):
+            if not isinstance(getattr(self, name), bool):
+                raise SceneError(f"model.{name} must be true or false, got {getattr(self, name)!r}")
+        check_input("model.lambda", "lambda", self.lambda_)
+
+
+class Impact(eqx.Module):
+    """One impact: `speed` (m/s, > 0), `angle_deg` (from the normal, in (-90, 90)),
+    `omega0` (rad/s; positive with a positive angle is the rolling sense)."""
+
+    speed: jax.Array = eqx.field(converter=_numbers("impact.speed"))
+    angle_deg: jax.Array = eqx.field(converter=_numbers("impact.angle_deg"), default=0.0)
+    omega0: jax.Array = eqx.field(converter=_numbers("impact.omega0"), default=0.0)
+
+    def __check_init__(self):
+        check_impact(self.speed, self.angle_deg, self.omega0, prefix="impact.")
+
+
+def check_impact(speed, angle_deg, omega0, prefix=""):
+    """Validate concrete impact inputs against their documented ranges (raises ``SceneError``
+    naming the field and the range)."""
+    check_input(f"{prefix}speed", "speed", speed)
+    check_input(f"{prefix}angle_deg", "angle_deg", angle_deg)
+    check_input(f"{prefix}omega0", "omega0", omega0)
+
+
+def _argument_shape(name: str, value) -> tuple:
+    """The shape of an impact argument of ``simulate``, refusing what is not numbers."""
+    wrong = f"{name} must be a number or an array of numbers"
+    if isinstance(value, (str, bytes)):
+        raise SceneError(f"{wrong}, got the text {value!r}")
+    if isinstance(value, jax.Array):  # concrete or traced
+        dtype, shape = value.dtype, value.shape
+    else:
+        try:
+            array = np.asarray(value)
+        except (TypeError, ValueError) as err:
+            raise SceneError(f"{wrong} ({' '.join(str(err).split())})") from None
+        dtype, shape = array.dtype, array.shape
+    if dtype.kind not in "iuf":
+        kinds = {"b": "booleans", "U": "text", "S": "text", "c": "complex numbers"}
+        raise SceneError(f"{wrong}, got {kinds.get(dtype.kind, f'values of type {dtype}')}")
+    if 0 in shape:
+        raise SceneError(f"{name} is empty (shape {shape}): give at least one value")
+    return tuple(shape)
+
+
+#: The scene's float parameters, by field name, as ``simulate`` broadcasts them.
+SCENE_ARRAYS = (
+    ("particle", "radius"),
+    ("particle", "density"),
+    ("contact", "K"),
+    ("contact", "f0"),
+    ("contact", "C_A"),
+    ("contact", "C_H"),
+    ("contact", "friction"),
+    ("contact", "G_star"),
+    ("model", "lambda_"),
+)
+
+
+def check_simulate_arguments(scene, speed=None, angle_deg=None, omega0=None) -> None:
+    """Check what ``simulate`` was given before anything is converted, naming the argument:
+    a scene that is not a `Scene`, an impact argument that is text, booleans or empty, and
+    arguments and scene parameters whose shapes do not broadcast together. Traced arguments
+    pass (only their shapes are checked); the values are checked by `check_impact`.
+
+    Raises:
+        SceneError: naming the argument (and, for shapes, every non-scalar one).
+    """
+    if not isinstance(scene, Scene):
+        raise SceneError(
+            "scene must be a jaximpact.Scene (jaximpact.load_scene(NAME or PATH), "
+            f"jaximpact.table1_scene()), got {type(scene).__name__}"
+        )
+    shapes = {}
+    for name, value in (("speed", speed), ("angle_deg", angle_deg), ("omega0", omega0)):
+        if value is not None:
+            shapes[name] = _argument_shape(name, value)
+    for section, field in SCENE_ARRAYS:
+        shapes[f"{section}.{field.rstrip('_')}"] = tuple(
+            np.shape(getattr(getattr(scene, section), field))
+        )
+    try:
+        np.broadcast_shapes(*shapes.values())
+    except ValueError:
+        given = ", ".join(f"{name} {shape}" for name, shape in shapes.items() if shape)
+        raise SceneError(
+            f"shapes that do not broadcast together: {given}; give scalars, or arrays of one "
+            "shape (one value per impact)"
+        ) from None
+
+
+class Solver(eqx.Module):
+    """Numerical settings (all static). Tolerances are dimensionless (Hertz units).
+
+    **Arguments:**
+    - `method`: ``"auto"`` (Tsit5, or Kvaerno5 when the scene is estimated to be stiff),
+      ``"tsit5"``, ``"dopri5"``, ``"dopri8"``, ``"rk4"`` (Runge-Kutta-Gill, fixed step ``dt``),
+      ``"kvaerno3"``, ``"kvaerno5"`` (implicit, for stiff scenes).
+    - `rtol`, `atol`: adaptive-step tolerances; ``None`` picks them from the float precision.
+    - `dt`: step of the fixed-step method, in units of the Hertz time ``n*/v_n``.
+    - `slip_width`: width of the slip-sign regularization, as a fraction of the normal speed;
+      ``None``: 3e-4 in float64, 3e-3 in float32 (above float32's rounding noise), or
+      ``100 rtol`` where that is larger.
+    - `ring_width`: width of the adhesion-ring separation switch, fraction of the normal speed
+      (1e-8: its error is about ``ring_width / cor_n``, which near the capture speed was the
+      largest error left at 1e-6; the ring law's slope is bounded, so a narrow switch costs no
+      steps).
+    - `max_steps`: step limit per impact; an impact that reaches it is reported as failed.
+    - `outputs`: ``"full"`` (default) or ``"rebound"``: only status, rebound velocities, spin,
+      angles and contact time (energy ledger, ``max_overlap`` and ``roll_time`` are NaN);
+      about twice as fast, for sweeps and fits that need no ledger.
+    - `stiffness_limit`: with ``method="auto"``, the estimated stiffness (fastest relaxation rate
+      times the Hertz time) above which the implicit solver is used.
+    """
+
+    method: str = eqx.field(static=True, default="auto")
+    rtol: float | None = eqx.field(static=True, default=None)
+    atol: float | None = eqx.field(static=True, default=None)
+    dt: float = eqx.field(static=True, default=0.01)
+    slip_width: float | None = eqx.field(static=True, default=None)
+    ring_width: float = eqx.field(static=True, default=1e-8)
+    max_steps: int = eqx.field(static=True, default=4096)
+    stiffness_limit: float = eqx.field(static=True, default=200.0)
+    outputs: str = eqx.field(static=True, default="full")
+
+    def __check_init__(self):
+        methods = ("auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5")
+        if self.method not in methods:
+            raise SceneError(f"solver.method must be one of {methods}, got {self.method!r}")
+        for name in ("rtol", "atol"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and 0 < v < 1):
+                raise SceneError(f"solver.{name} must be in (0, 1), got {v!r}")
+        for name in ("dt", "slip_width", "ring_width", "stiffness_limit"):
+            v = getattr(self, name)
+            if v is None and name == "slip_width":
+                continue
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise SceneError(f"solver.{name} must be a finite number > 0, got {v!r}")
+        if self.outputs not in ("full", "rebound"):
+            raise SceneError(f"solver.outputs must be 'full' or 'rebound', got {self.outputs!r}")
+        if not (isinstance(self.max_steps, int) and self.max_steps >= 16):
+            raise SceneError(f"solver.max_steps must be an integer >= 16, got {self.max_steps!r}")
+
+
+class Scene(eqx.Module):
+    """A complete simulation set-up: ``particle``, ``contact``, ``model``, ``impact``, ``solver``
+    (and ``priors`` for a Bayesian fit, which the simulation ignores).
+
+    Replace parts with ``eqx.tree_at`` or :meth:`replace`, e.g.
+    ``scene.replace(contact={"f0": 0.0})``.
+    """
+
+    particle: Particle
+    contact: Contact
+    # Factories, not instances: building JAX arrays at import would start the JAX backend before
+    # a user (or `jaximpact sweep --distributed`) can configure it.
+    model: Model = eqx.field(default_factory=Model)
+    impact: Impact = eqx.field(default_factory=lambda: Impact(speed=1.0))
+    solver: Solver = eqx.field(default_factory=Solver)
+    # ((name, "loguniform:LO:HI" | "normal:MU:SD"), ...): the scene file's [priors], read by
+    # `fitting.sample_posterior`; the simulation ignores them.
+    priors: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
+
+    def __check_init__(self):
+        if self.model.tangential == "mindlin":
+            check_range(
+                "contact.G_star (needed by model.tangential = 'mindlin')",
+                self.contact.G_star,
+                positive=True,
+            )
+
+    def replace(self, **sections):
+        """A copy with fields replaced: ``scene.replace(contact={"f0": 1.0}, solver={...})``."""
+        new = self
+        for section, fields in sections.items():
+            part = getattr(self, section)
+            kwargs = {f: getattr(part, f) for f in part.__dataclass_fields__}
+            unknown = set(fields) - set(kwargs)
+            if unknown:
+                raise SceneError(
+                    f"unknown field(s) {sorted(unknown)} in [{section}]; allowed: {sorted(kwargs)}"
+                )
+            kwargs.update(fields)
+            new = eqx.tree_at(lambda s, sec=section: getattr(s, sec), new, type(part)(**kwargs))
+        return new
+
+
+def hertz_stiffness(E1, nu1, E2, nu2):
+    """``K = 4 / (3 pi (k1 + k2))`` with ``k_i = (1 - nu_i^2) / (pi E_i)`` (eq. 3-4), in Pa."""
+    for name, v in (("E1", E1), ("E2", E2)):
+        check_input(f"contact.{name}", "E", v)
+    for name, v in (("nu1", nu1), ("nu2", nu2)):
+        check_input(f"contact.{name}", "nu", v)
+    k1 = (1 - nu1**2) / (math.pi * E1)
+    k2 = (1 - nu2**2) / (math.pi * E2)
+    return 4.0 / (3.0 * math.pi * (k1 + k2))
+
+
+def shear_modulus_star(E1, nu1, E2, nu2):
+    """``G* = 1 / ((2 - nu1)/G1 + (2 - nu2)/G2)`` with ``G_i = E_i / (2 (1 + nu_i))``, in Pa.
+
+    The effective shear modulus of Mindlin's tangential stiffness ``8 G* a`` (a rigid anvil:
+    ``E2 -> inf``, ``G* = G1 / (2 - nu1)``).
+    """
+    total = 0.0
+    for E, nu in ((E1, nu1), (E2, nu2)):
+        if math.isfinite(E):
+            total += (2.0 - nu) * 2.0 * (1.0 + nu) / E
+    return 1.0 / total
+
+
+def damping_from_zeta(zeta, radius, density, K, reference_speed):
+    """``C = zeta (r^3 K v^0.5 / m)^-0.4`` (eq. 21, 24): s/m from the paper's zeta at speed v."""
+    mass = density * 4.0 / 3.0 * math.pi * radius**3
+    return zeta * (radius**3 * K * reference_speed**0.5 / mass) ** -0.4
+
+
+def table1_scene(**solver) -> Scene:
+    """The paper's Table 1 scene (Brach, Dunn & Cheng 1999).
+
+    r = 35 um, rho = 8000 kg/m^3, K = 11.4e10 Pa, f0 = 325 N/m, zeta_A = 400 and zeta_H = 100 at
+    1.66 m/s (C_A = 0.882 s/m, C_H = 0.220 s/m), analytical rolling moments. Table 1 gives no
+    friction coefficient: f = 0.3 is this project's choice. Default impact: 1.66 m/s, normal,
+    omega0 = 1e6 deg/s.
+    """
+    r, rho, K, v = 35e-6, 8000.0, 11.4e10, 1.66
+    return Scene(
+        particle=Particle(radius=r, density=rho),
+        contact=Contact(
+            K=K,
+            f0=325.0,
+            C_A=damping_from_zeta(400.0, r, rho, K, v),
+            C_H=damping_from_zeta(100.0, r, rho, K, v),
+            friction=0.3,
+        ),
+        model=Model(rotation=True, adhesion=True, rolling_moments="analytical"),
+        impact=Impact(speed=v, angle_deg=0.0, omega0=math.radians(1e6)),
+        solver=Solver(**solver),
+    )

@@ -1,0 +1,70 @@
+"""The exact contact forces and moments: Hertz scales, the adhesion ring integrals, the
+forces at a state, and the normal potential."""
+
+from __future__ import annotations
+
+import math
+
+from ._params import Params
+
+
+def hertz_scales(p: Params, v_n: float) -> tuple[float, float]:
+    """Peak overlap n* of an undamped, non-adhesive Hertz impact at normal speed v_n, and n*/v_n."""
+    n_star = (5.0 * p.mass * v_n**2 / (4.0 * p.K * math.sqrt(p.radius))) ** 0.4
+    return n_star, n_star / v_n
+
+
+def ring_integrals(ndot: float, b: float) -> tuple[float, float]:
+    """I0 = int max(-u,0) da and I1 = int max(-u,0) cos(a) da over [0, 2pi], u = ndot + b cos(a)."""
+    ab = abs(b)
+    if ndot >= ab:  # the whole ring approaches (or is at rest): no damping
+        return 0.0, 0.0
+    if ndot <= -ab:  # the whole ring separates
+        return -2.0 * math.pi * ndot, -math.pi * b
+    # partial ring: u < 0 for beta < alpha < 2 pi - beta, cos(beta) = -ndot/|b|
+    c = -ndot / ab
+    beta = math.acos(c)
+    sb = math.sqrt(max(1.0 - c * c, 0.0))
+    i0 = -2.0 * ndot * (math.pi - beta) + 2.0 * ab * sb
+    i1 = 2.0 * ndot * sb - ab * (math.pi - beta) + ab * sb * c  # (b/2) sin(2 beta) = b sb c
+    return i0, (i1 if b > 0 else -i1)
+
+
+def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
+    """Normal force parts, rolling moments and friction load at a state (SI).
+
+    Returns a dict with F_H, F_HD, F_A, F_AD, F_n, M_A, M_H, M and N.
+    """
+    out = dict(F_H=0.0, F_HD=0.0, F_A=0.0, F_AD=0.0, F_n=0.0, M_A=0.0, M_H=0.0, M=0.0, N=0.0)
+    if not n > 0:
+        return out
+    r = p.radius
+    a = math.sqrt(r * n)
+    hertz = p.K * math.sqrt(r) * n**1.5
+    out["F_H"] = -hertz
+    out["F_HD"] = -hertz * p.C_H * ndot
+    analytical = p.rolling_moments == "analytical"
+    if p.adhesion:
+        out["F_A"] = 2.0 * math.pi * a * p.f0
+        i0, i1 = ring_integrals(ndot, w * a if analytical else 0.0)
+        out["F_AD"] = p.f0 * p.C_A * a * i0
+        if analytical:
+            out["M_A"] = p.f0 * p.C_A * a * a * i1
+    if analytical:
+        out["M_H"] = -(p.K / 5.0) * math.sqrt(n / r) * p.C_H * a**4 * w
+        out["M"] = out["M_A"] + out["M_H"]
+    elif p.rolling_moments == "lambda":
+        out["M"] = -p.lam * p.C_A * a * w
+    out["F_n"] = out["F_H"] + out["F_HD"] + out["F_A"] + out["F_AD"]
+    out["N"] = abs(out["F_n"]) if p.friction_load == "net" else hertz
+    return out
+
+
+def normal_potential(p: Params, n: float) -> float:
+    """V(n), the potential of F_H + F_A (zero out of contact)."""
+    if not n > 0:
+        return 0.0
+    v = 0.4 * p.K * math.sqrt(p.radius) * n**2.5
+    if p.adhesion:
+        v -= 4.0 / 3.0 * math.pi * p.f0 * math.sqrt(p.radius) * n**1.5
+    return v

@@ -1,0 +1,221 @@
+"""The Mindlin tangential model: an elastic tangential spring that sticks and slips, and its
+segment loop."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from ._forces import contact_forces, hertz_scales, normal_potential
+from ._params import ImpactResult, Params
+from ._rigid import _Model
+from ._segments import _LOOKAHEAD, _N_EPS, _fired_events, _make_event, _segment_end
+
+_STICK = 0
+
+
+class _MindlinModel:
+    """State ``[n, ndot, tdot, w, xi, work_t, loss_HD, loss_AD, loss_R]`` (SI)."""
+
+    def __init__(self, p: Params):
+        self.p = p
+        self.m = p.mass
+        self.r = p.radius
+        self.k2 = p.k2 if p.rotation else 0.0
+        self.f = p.friction
+        self.rigid = _Model(p)  # for the kink functions of the normal force
+
+    def stiffness(self, n):
+        return 8.0 * self.p.G_star * math.sqrt(self.r * n) if n > 0 else 0.0
+
+    def stiffness_slope(self, n):
+        return 4.0 * self.p.G_star * math.sqrt(self.r / n) if n > 0 else 0.0
+
+    def slip(self, y):
+        return y[2] - self.r * y[3] if self.p.rotation else y[2]
+
+    def cap(self, y):
+        k = self.stiffness(y[0])
+        if k <= 0:
+            return 0.0
+        return self.f * contact_forces(self.p, y[0], y[1], y[3])["N"] / k
+
+    def xi(self, y, mode):
+        return y[4] if mode == _STICK else mode * self.cap(y)
+
+    def rhs(self, y, mode):
+        n, ndot, w = y[0], y[1], y[3]
+        fc = contact_forces(self.p, n, ndot, w)
+        xi = self.xi(y, mode)
+        F_t = -self.stiffness(n) * xi
+        F_U = -0.5 * self.stiffness_slope(n) * xi * xi
+        s = self.slip(y)
+        wdot = (-self.r * F_t + fc["M"]) / (self.m * self.k2) if self.p.rotation else 0.0
+        return [
+            ndot,
+            (fc["F_n"] + F_U) / self.m,
+            F_t / self.m,
+            wdot,
+            s if mode == _STICK else 0.0,
+            F_t * s + F_U * ndot,
+            -fc["F_HD"] * ndot,
+            -fc["F_AD"] * ndot,
+            -fc["M"] * w,
+        ]
+
+    def cap_rate(self, y, mode):
+        """``dc/dt`` along the motion: closed form without adhesion, else a central difference
+        along the flow (relative error ~1e-9; it only places the slip-to-stick event)."""
+        p, n, ndot = self.p, y[0], y[1]
+        if n <= 0 or self.f == 0:
+            return 0.0
+        nddot = self.rhs(y, mode)[1]
+        if not p.adhesion:
+            kr = p.K * math.sqrt(self.r)
+            if p.friction_load == "hertz":
+                load, load_rate = kr * n**1.5, 1.5 * kr * math.sqrt(n) * ndot
+            else:
+                g = 1.0 + p.C_H * ndot
+                sign = 1.0 if g >= 0 else -1.0
+                load = sign * kr * n**1.5 * g
+                load_rate = sign * kr * (1.5 * math.sqrt(n) * ndot * g + n**1.5 * p.C_H * nddot)
+            k = self.stiffness(n)
+            return self.f * (load_rate - load * self.stiffness_slope(n) * ndot / k) / k
+        h = 1e-7 * n / max(abs(ndot), 1e-300)
+        d = np.array(self.rhs(y, mode))
+        up, down = np.array(y, float) + h * d, np.array(y, float) - h * d
+        return (self.cap(up) - self.cap(down)) / (2.0 * h)
+
+    def spring_energy(self, y, mode):
+        return 0.5 * self.stiffness(y[0]) * self.xi(y, mode) ** 2
+
+    def normal_energy(self, y):
+        return 0.5 * self.m * y[1] ** 2 + normal_potential(self.p, y[0])
+
+    def mechanical_energy(self, y, mode):
+        kinetic = 0.5 * self.m * (y[2] ** 2 + self.k2 * y[3] ** 2)
+        return self.normal_energy(y) + kinetic + self.spring_energy(y, mode)
+
+    def mode_functions(self, mode):
+        """(function, next mode) pairs whose downward zero ends the mode."""
+        if self.f == 0:
+            return []
+        if mode == _STICK:
+
+            def limit(y):
+                return self.f * contact_forces(self.p, y[0], y[1], y[3])["N"]
+
+            return [
+                (lambda y: limit(y) - self.stiffness(y[0]) * y[4], 1),
+                (lambda y: limit(y) + self.stiffness(y[0]) * y[4], -1),
+            ]
+        return [(lambda y: mode * self.slip(y) - self.cap_rate(y, mode), _STICK)]
+
+
+def _simulate_mindlin(
+    p, speed, angle_deg, omega0, *, rtol, atol, method, t_max, detect_capture, max_segments
+):
+    model = _MindlinModel(p)
+    m, r = model.m, model.r
+    th = math.radians(angle_deg)
+    v_n, v_t = speed * math.cos(th), speed * math.sin(th)
+    w0 = float(omega0) if p.rotation else 0.0
+    n_star, _ = hertz_scales(p, v_n)
+    L = max(n_star, 2.0 * math.pi * p.f0 / p.K if p.adhesion else 0.0)
+    T = math.sqrt(m / (p.K * math.sqrt(r) * math.sqrt(L)))
+    V = L / T
+    Vt = max(V, abs(v_t), r * abs(w0))
+    E0 = m * max(V, speed, Vt) ** 2
+    S = np.array([L, V, Vt, Vt / r, L, E0, E0, E0, E0])
+    if t_max is None:
+        t_max = 1000.0 * T
+    n_eps = _N_EPS * L
+    t = n_eps / v_n
+    y = np.array([n_eps, v_n, v_t, w0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    energy_in = 0.5 * m * speed**2 + 0.5 * m * model.k2 * w0**2
+    mode = _STICK
+    roll_time = 0.0 if model.slip(y) == 0 else math.nan
+
+    base = [(lambda y: y[0] - n_eps, True, -1, "rebound")]
+    if detect_capture and p.adhesion:
+        base.append((model.normal_energy, True, -1, "captured"))
+    base.append((lambda y: y[1], False, -1, "turn"))
+    base.append((model.slip, False, 0, "zero_slip"))
+    kinks = model.rigid.kink_functions()
+    h_look = _LOOKAHEAD * T
+    status, message, max_overlap, stalls, n_seg = "failed", "", n_eps, 0, 0
+    while True:
+        if n_seg >= max_segments:
+            message = "too many segments"
+            break
+        n_seg += 1
+        y_look = y + h_look * np.array(model.rhs(y, mode))
+
+        def side(g, y=y, y_look=y_look):
+            g1 = g(y_look)
+            return 1.0 if (g1 if g1 != 0 else g(y)) >= 0 else -1.0
+
+        specs = list(base)
+        for g, nxt in model.mode_functions(mode):
+            specs.append((g, True, -1, ("mode", nxt)))
+        for g in kinks:
+            specs.append((g, True, -side(g), "kink"))
+        events = [_make_event(g, S, term, d) for g, term, d, _ in specs]
+
+        def fun(tau, z, seg_mode=mode):
+            return np.array(model.rhs(z * S, seg_mode)) * T / S
+
+        sol = solve_ivp(
+            fun, (t / T, t_max / T), y / S, method=method, rtol=rtol, atol=atol, events=events
+        )
+        ys = sol.y * S[:, None]
+        max_overlap = max(max_overlap, float(np.max(ys[0])))
+        for (_, _, _, kind), te, ye in zip(specs, sol.t_events, sol.y_events, strict=True):
+            if kind == "turn" and len(ye):
+                max_overlap = max(max_overlap, float(np.max(ye[:, 0])) * L)
+            if kind == "zero_slip" and len(te) and math.isnan(roll_time):
+                roll_time = float(te[0]) * T
+        t_new, y_new = float(sol.t[-1]) * T, ys[:, -1].copy()
+        stalls, message = _segment_end(sol, y_new, t_new - t, T, stalls)
+        y, t = y_new, t_new
+        if message:
+            break
+        fired = _fired_events(specs, sol)
+        if "rebound" in fired:
+            status = "rebound"
+            break
+        if "captured" in fired:
+            status = "captured"
+            break
+        switches = [k[1] for k in fired if isinstance(k, tuple)]
+        if switches:
+            y[4] = model.xi(y, mode)  # slip -> stick: xi stays where the cap left it
+            mode = switches[0]
+            if mode != _STICK:
+                y[4] = model.xi(y, mode)
+
+    y[4] = model.xi(y, mode)
+    contact_time = t
+    if status == "rebound" and y[1] < 0:
+        contact_time += y[0] / -y[1]
+    spring = model.spring_energy(y, _STICK)
+    return ImpactResult(
+        status=status,
+        vn_out=float(-y[1]),
+        vt_out=float(y[2]),
+        omega_out=float(y[3]),
+        contact_time=float(contact_time),
+        roll_time=float(roll_time),
+        max_overlap=float(max_overlap),
+        energy_in=float(energy_in),
+        energy_out=float(model.mechanical_energy(y, _STICK)),
+        loss_hertz_damping=float(y[6]),
+        loss_adhesion_damping=float(y[7]),
+        loss_friction=float(-y[5] - spring),
+        loss_rolling=float(y[8]),
+        n_out=float(y[0]) if status != "rebound" else 0.0,
+        n_segments=n_seg,
+        message=message,
+    )

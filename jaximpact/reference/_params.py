@@ -1,0 +1,129 @@
+"""The reference's inputs and outputs: the scene parameters in SI units with the model
+switches (``Params``), Table 1 of the paper, and ``ImpactResult``."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+ROLLING_MOMENTS = ("none", "analytical", "lambda")
+
+
+FRICTION_LOADS = ("net", "hertz")
+
+
+TABLE1_SPEED = 1.66  # m/s, the paper's reference impact speed
+
+
+TABLE1_OMEGA0 = 1e6 * math.pi / 180.0  # 1e6 deg/s in rad/s
+
+
+@dataclass(frozen=True)
+class Params:
+    """Scene parameters in SI units and the model switches."""
+
+    radius: float  # m
+    density: float  # kg/m^3
+    K: float  # Pa
+    f0: float = 0.0  # N/m
+    C_A: float = 0.0  # s/m
+    C_H: float = 0.0  # s/m
+    friction: float = 0.0
+    lam: float = 0.0  # N m
+    kappa: float = 0.4  # k^2 / r^2
+    rotation: bool = True
+    adhesion: bool = True
+    rolling_moments: str = "analytical"
+    friction_load: str = "net"
+    tangential: str = "rigid"  # or "mindlin": the elastic spring 8 G* a (see _MindlinModel)
+    G_star: float = 0.0  # Pa, effective shear modulus (mindlin only)
+
+    def __post_init__(self):
+        if self.tangential not in ("rigid", "mindlin"):
+            raise ValueError("tangential must be 'rigid' or 'mindlin'")
+        if self.tangential == "mindlin" and not self.G_star > 0:
+            raise ValueError("G_star must be > 0 with tangential = 'mindlin'")
+        if self.rolling_moments not in ROLLING_MOMENTS:
+            raise ValueError(f"rolling_moments must be one of {ROLLING_MOMENTS}")
+        if self.friction_load not in FRICTION_LOADS:
+            raise ValueError(f"friction_load must be one of {FRICTION_LOADS}")
+        for name in ("radius", "density", "K", "kappa"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
+        for name in ("f0", "C_A", "C_H", "friction", "lam"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0")
+
+    @property
+    def mass(self) -> float:
+        return self.density * 4.0 / 3.0 * math.pi * self.radius**3
+
+    @property
+    def k2(self) -> float:
+        """Squared centroidal radius of gyration."""
+        return self.kappa * self.radius**2
+
+
+def zeta_to_c(zeta: float, radius: float, density: float, K: float, speed: float) -> float:
+    """Damping constant C [s/m] from the paper's zeta = C (r^3 K v^0.5 / m)^0.4 (eq. 21, 24)."""
+    m = density * 4.0 / 3.0 * math.pi * radius**3
+    return zeta / (radius**3 * K * math.sqrt(speed) / m) ** 0.4
+
+
+def table1_params(**overrides) -> Params:
+    """The paper's Table 1 scene (friction 0.3, not given in the paper; lambda 0).
+
+    ``zeta_A = 400`` and ``zeta_H = 100`` at 1.66 m/s give ``C_A ~ 0.882`` and ``C_H ~ 0.220`` s/m.
+    Keyword arguments override any field of :class:`Params`.
+    """
+    r, rho, K = 35e-6, 8000.0, 11.4e10
+    base = dict(
+        radius=r,
+        density=rho,
+        K=K,
+        f0=325.0,
+        C_A=zeta_to_c(400.0, r, rho, K, TABLE1_SPEED),
+        C_H=zeta_to_c(100.0, r, rho, K, TABLE1_SPEED),
+        friction=0.3,
+        lam=0.0,
+        rolling_moments="analytical",
+    )
+    base.update(overrides)
+    return Params(**base)
+
+
+@dataclass
+class ImpactResult:
+    """Outcome of one impact, SI units.  ``roll_time`` is NaN when the slip never reaches zero."""
+
+    status: str  # "rebound" | "captured" | "failed"
+    vn_out: float  # -ndot at the end (away from the surface)
+    vt_out: float
+    omega_out: float
+    contact_time: float
+    roll_time: float
+    max_overlap: float
+    energy_in: float
+    energy_out: float
+    loss_hertz_damping: float
+    loss_adhesion_damping: float
+    loss_friction: float
+    loss_rolling: float
+    n_out: float = 0.0  # overlap at the end (0 for a rebound, > 0 for a capture)
+    n_segments: int = 0  # integration restarts + 1
+    message: str = ""
+    history: dict | None = field(default=None, repr=False)
+
+    @property
+    def total_loss(self) -> float:
+        return (
+            self.loss_hertz_damping
+            + self.loss_adhesion_damping
+            + self.loss_friction
+            + self.loss_rolling
+        )
+
+    @property
+    def ledger_residual(self) -> float:
+        """(energy_in - energy_out - total_loss) / energy_in; zero up to solver error."""
+        return (self.energy_in - self.energy_out - self.total_loss) / self.energy_in

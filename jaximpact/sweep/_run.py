@@ -1,0 +1,293 @@
+"""``run_sweep``: the pipelined loop over chunks (dispatch, convert, write) and its summary."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .._io.tables import (
+    RESULT_COLUMNS,
+    atomic_write_text,
+)
+from ._chunks import (
+    _chunk_inputs,
+    _dispatch,
+    _failure_counts,
+    _fetch,
+    _model_config,
+    _runner,
+    _settings,
+)
+from ._sources import GridSource, SweepError, TableSource
+from ._store import (
+    _MANIFEST,
+    _PART,
+    FORMAT,
+    _atomic_write_table,
+    _clear,
+    _legacy_manifest_name,
+    _load_manifests,
+    _manifest_failures,
+    _manifest_name,
+    _part_name,
+    _prepare_output,
+    _result_columns,
+    _setting_differences,
+)
+from ._writer import _chunk_table, _Writer
+
+DEFAULT_CHUNK_SIZE = 8192
+
+
+# Test hook only: after this many chunks are committed in one run, write the next part file and
+# then SIGKILL the process before its manifest entry is written (the most delicate moment).
+_KILL_ENV = "JAXIMPACT_SWEEP_KILL_AFTER"
+
+
+@dataclass(frozen=True)
+class SweepSummary:
+    """What one :func:`run_sweep` call did (for this process).
+
+    Attributes:
+        output: the output directory.
+        n_impacts, n_chunks, chunk_size: the whole sweep.
+        chunks_run: chunks computed by this call; ``chunks_skipped``: this process's chunks
+            already done before it started.
+        impacts_run: impacts (without padding) computed by this call.
+        failed: impacts with status ``failed`` among those computed by this call.
+        seconds: wall time of the call; ``devices``: local devices used.
+        complete: every chunk of the sweep is listed in the manifests as seen at the end.
+        impacts_done: impacts in the chunks the manifests list at the end (every process, every
+            call; ``n_impacts`` once complete).
+        failures: ``{failure_reason: count}`` over those impacts (``unrecorded``: failed in a
+            sweep begun before reasons were recorded); empty when none failed.
+        legacy_columns: the sweep was begun before ``failure_reason`` existed; its part files
+            keep the older columns (one schema per directory), so reasons are not stored.
+    """
+
+    output: str
+    n_impacts: int
+    n_chunks: int
+    chunk_size: int
+    chunks_run: int
+    chunks_skipped: int
+    impacts_run: int
+    failed: int
+    seconds: float
+    devices: int
+    complete: bool
+    impacts_done: int = 0
+    failures: dict = field(default_factory=dict)
+    legacy_columns: bool = False
+
+
+def run_sweep(
+    source: TableSource | GridSource,
+    output,
+    *,
+    scene_path=None,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+    restart: bool = False,
+    progress: bool = True,
+    process_index: int | None = None,
+    process_count: int | None = None,
+) -> SweepSummary:
+    """Run (or continue) a sweep, writing each finished chunk to ``output``.
+
+    Set the precision first (``jax.config.update("jax_enable_x64", True)`` for float64); it is
+    part of the settings.
+
+    Arguments:
+        source: the impacts (:func:`read_impacts_file`, or :class:`GridSource`).
+        output: the output directory (created if missing).
+        scene_path: an embedded scene's name or a scene file; ``None``: the embedded Table 1
+            scene.
+        chunk_size: impacts per chunk; a multiple of the number of local JAX devices.
+        restart: delete results made with other settings (or any results) and start over.
+        progress: show a tqdm progress bar on stderr (impacts/s, ETA).
+        process_index, process_count: this process's share (chunks ``i`` with
+            ``i % process_count == process_index``); default ``jax.process_index()`` and
+            ``jax.process_count()`` (0 and 1 without ``jax.distributed``).
+
+    Returns:
+        SweepSummary: what this call computed.
+
+    Raises:
+        SweepError: chunk size not a positive multiple of the device count, bad process share,
+            ``output`` a file, not creatable or not writable, a non-empty directory that is
+            not a sweep, or results there made with other settings (without ``restart``; the
+            message names each setting that differs). All raised before any computing.
+        SceneError: the scene file is invalid. OSError: files cannot be read or written.
+    """
+    import jax
+    import jax.numpy as jnp
+    from tqdm import tqdm
+
+    from .. import load_scene
+
+    t_start = time.perf_counter()
+    devices = jax.local_devices()
+    if chunk_size < 1 or chunk_size % len(devices):
+        raise SweepError(
+            f"--chunk-size {chunk_size} must be a positive multiple of the number of local "
+            f"devices ({len(devices)}: {', '.join(str(d) for d in devices)})"
+        )
+    index = jax.process_index() if process_index is None else process_index
+    count = jax.process_count() if process_count is None else process_count
+    if not 0 <= index < count:
+        raise SweepError(f"process index {index} is not in [0, {count})")
+    dtype = jnp.result_type(float)
+    scene = load_scene(scene_path)
+    settings, digest = _settings(scene_path, source, chunk_size, dtype)
+    n_chunks = settings["n_chunks"]
+
+    directory = Path(output)
+    _prepare_output(directory)  # before any computing: every file problem first
+    mine = [c for c in range(n_chunks) if c % count == index]
+    if restart:
+        # Each process deletes only what it will rewrite, so concurrent processes of a
+        # distributed restart never delete each other's new files; process 0 also deletes what
+        # no process of this run owns (parts past the end, manifests of a larger old run).
+        own = {_part_name(c) for c in mine}
+        own |= {_manifest_name(index), _legacy_manifest_name(index)}
+
+        def keep(name: str) -> bool:
+            if name in own:
+                return False
+            if index != 0:
+                return True
+            part, manifest = _PART.match(name), _MANIFEST.match(name)
+            if part:
+                return int(part.group(1)) < n_chunks
+            if manifest:
+                return int(manifest.group(1)) < count
+            return True  # others' temporaries may be in flight
+
+        _clear(directory, keep)
+        manifests = {}
+    else:
+        manifests = _load_manifests(directory)
+        for _, m in manifests.values():
+            if m.get("settings_hash") != digest:
+                differences = _setting_differences(m.get("settings") or {}, settings)
+                raise SweepError(
+                    f"{directory}: a sweep made with other settings: {'; '.join(differences)}. "
+                    "Use --restart to discard its results, or another -o"
+                )
+        # Old-style manifest names (before "_manifest-"): this process renames its own (process
+        # 0 also those no process of this run owns), so Parquet readers skip them from now on.
+        for p, (file, m) in list(manifests.items()):
+            if (p == index or (index == 0 and p >= count)) and file.name != _manifest_name(p):
+                os.replace(file, directory / _manifest_name(p))
+                manifests[p] = (directory / _manifest_name(p), m)
+    result_columns = _result_columns(manifests)
+    done = {int(c) for _, m in manifests.values() for c in m["completed"]}
+    own_manifest = manifests[index][1] if index in manifests else {"completed": []}
+    own_completed = sorted(int(c) for c in own_manifest["completed"])
+    own_failures = _manifest_failures(directory, own_manifest) if own_completed else {}
+    todo = [c for c in mine if c not in done]
+
+    base, terms, cfg = _model_config(scene, source, chunk_size, dtype)
+    fn, sharding = _runner(terms, cfg, devices)
+    kill_after = os.environ.get(_KILL_ENV)
+    kill_after = None if kill_after is None else int(kill_after)
+
+    def launch(chunk: int):
+        """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
+        rows, valid, args = _chunk_inputs(source, base, chunk, chunk_size, dtype)
+        return chunk, valid, rows, dispatcher.submit(_dispatch, fn, sharding, args)
+
+    def write(chunk: int, valid: int, table, counts: dict) -> None:
+        """In the writer thread: the part file, then the manifest that lists it."""
+        nonlocal failed, impacts_run
+        _atomic_write_table(directory / _part_name(chunk), table)
+        if kill_after is not None and len(own_completed) - skipped_own >= kill_after:
+            os.kill(os.getpid(), signal.SIGKILL)  # test hook: die before the manifest update
+        own_completed.append(chunk)
+        # Counted in memory (reasons are known even where the sweep's columns lack them), and
+        # stored with the completed list in one atomic write.
+        for reason, n in counts.items():
+            own_failures[reason] = own_failures.get(reason, 0) + n
+        manifest = {
+            "format": FORMAT,
+            "settings_hash": digest,
+            "settings": settings,
+            "process_index": index,
+            "process_count": count,
+            "result_columns": list(result_columns),
+            "completed": sorted(own_completed),
+            "failures": dict(sorted(own_failures.items())),
+        }
+        atomic_write_text(directory / _manifest_name(index), json.dumps(manifest, indent=1) + "\n")
+        failed += sum(counts.values())
+        impacts_run += valid
+        bar.update(valid)
+
+    def hand_over(chunk: int, valid: int, rows: dict, result) -> None:
+        """Wait for the chunk, convert it and give it to the writer."""
+        status, values = _fetch(result.result(), valid)
+        table = _chunk_table(rows, source.columns, status, values, digest, result_columns)
+        writer.submit(chunk, valid, table, _failure_counts(status))
+
+    skipped_own = len(own_completed)
+    total = sum(min(chunk_size, source.n - c * chunk_size) for c in mine)
+    bar = tqdm(
+        total=total,
+        initial=total - sum(min(chunk_size, source.n - c * chunk_size) for c in todo),
+        unit="impact",
+        unit_scale=True,
+        smoothing=0.1,
+        # No bar for a single chunk (it would jump from 0 to 100 %) nor for work under a second.
+        disable=not progress or len(todo) < 2,
+        delay=1.0,
+        desc=f"sweep {directory.name}" + (f" [process {index}/{count}]" if count > 1 else ""),
+    )
+    failed = impacts_run = 0
+    pending = None
+    writer = _Writer(write)
+    # JAX runs a program on one CPU device asynchronously, but the call of a program sharded
+    # over several CPU devices returns only when the chunk is done (measured): calls from a
+    # thread of their own keep this thread free to fetch and convert the chunk before.
+    dispatcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sweep-dispatch")
+    try:
+        # Dispatch chunk k+1 before waiting for chunk k: the devices always have the next chunk
+        # while the host fetches, converts and (in the writer thread) writes the last one.
+        for chunk in todo:
+            launched = launch(chunk)
+            if pending is not None:
+                hand_over(*pending)
+            pending = launched
+        if pending is not None:
+            hand_over(*pending)
+        writer.finish()
+    finally:
+        dispatcher.shutdown(wait=True, cancel_futures=True)
+        writer.close()
+        bar.close()
+    final = _load_manifests(directory)
+    finished = {int(c) for _, m in final.values() for c in m["completed"]}
+    failures: dict[str, int] = {}
+    for _, m in final.values():
+        for reason, n in _manifest_failures(directory, m).items():
+            failures[reason] = failures.get(reason, 0) + n
+    return SweepSummary(
+        output=str(directory),
+        n_impacts=source.n,
+        n_chunks=n_chunks,
+        chunk_size=chunk_size,
+        chunks_run=len(todo),
+        chunks_skipped=len(mine) - len(todo),
+        impacts_run=impacts_run,
+        failed=failed,
+        seconds=time.perf_counter() - t_start,
+        devices=len(devices),
+        complete=finished >= set(range(n_chunks)),
+        impacts_done=sum(min(chunk_size, source.n - c * chunk_size) for c in finished),
+        failures=failures,
+        legacy_columns=result_columns != RESULT_COLUMNS,
+    )
