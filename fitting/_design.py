@@ -217,37 +217,8 @@ def design(
     **Raises:** `FitError` for bad names, options or too few usable candidates.
     """
     names = check_names(params)
-    observables = tuple(observables)
-    if not observables:
-        raise FitError("observables: name at least one of " + ", ".join(DESIGN_OBSERVABLES))
-    for o in observables:
-        if o not in DESIGN_OBSERVABLES:
-            raise FitError(
-                f"observables: unknown or unusable {o!r}; allowed: {', '.join(DESIGN_OBSERVABLES)}"
-            )
-    sigma = dict(sigma or {})
-    for o, s in sigma.items():
-        if o not in observables:
-            raise FitError(f"sigma given for {o!r}, which is not among the observables")
-        if not (math.isfinite(s) and s > 0):
-            raise FitError(f"sigma of {o} must be finite and > 0, got {number_text(s)}")
-    if not (isinstance(n, int | np.integer) and n >= 1):
-        raise FitError(f"n must be an integer >= 1, got {number_text(n)}")
-    if not (ridge > 0 and math.isfinite(ridge)):
-        raise FitError(f"ridge must be > 0, got {number_text(ridge)}")
-    if not 0 < perturbation < 1:
-        raise FitError(f"perturbation must be in (0, 1), got {number_text(perturbation)}")
-    source = ""
-    if not isinstance(candidates, ImpactTable):
-        source = str(candidates)
-        candidates = read_impacts(candidates)
-    if candidates.overrides:
-        raise FitError(
-            f"{source or 'candidates'}: per-impact parameter columns "
-            f"({', '.join(candidates.overrides)}) are not supported in a design"
-        )
-    if "cor_t" in observables and np.any(candidates.angle_deg == 0):
-        raise FitError("observables: cor_t is undefined at normal impacts (angle_deg = 0)")
+    observables, sigma = _check_options(observables, sigma, n, ridge, perturbation)
+    candidates, source = _candidates(candidates, observables)
 
     from ._least_squares.objective import set_parameters
 
@@ -263,32 +234,8 @@ def design(
     scale = default_scales(obs.observable, obs.speed, radius)
     for o, s in sigma.items():
         scale = np.where(obs.observable == o, s, scale)
-    rebound_code = jaximpact.Status.REBOUND
-
-    def at(th):
-        """Jacobian in ln p (the solver variable u is ln p except for bounded parameters) and
-        status of every candidate at parameter values ``th``."""
-        _, jac, status = program(to_unbounded(names, th)[None], value=0.0, scale=scale)
-        return jac[0] * (th / dphys_du(names, th))[None, :], status[0]
-
-    jac, status = at(theta)
-    rebound = status == rebound_code
-    stable = rebound.copy()
-    u0 = to_unbounded(names, theta)
-    for i in range(len(names)):
-        for sign in (-1.0, 1.0):
-            u = u0.copy()
-            u[i] = to_unbounded([names[i]], [theta[i] * (1 + sign * perturbation)])[0]
-            _, _, st = program(u[None], value=0.0, scale=scale)
-            stable &= (st[0] == rebound_code) == rebound
+    jacs, rebound, stable = _jacobians(program, names, theta, scale, perturbation, at_draws)
     n_cand = len(candidates)
-    if at_draws is None:
-        jacs = jac[None]
-    else:  # the information at every draw; captured at any draw: near the threshold
-        per_draw = [at(th) for th in at_draws]
-        jacs = np.stack([j for j, _ in per_draw])
-        for _, st in per_draw:
-            stable &= st == rebound_code
     # jacs: (draws or 1, n_cand * observables, p)
     dropped_captured = np.flatnonzero(~rebound)
     dropped_near = np.flatnonzero(rebound & ~stable)
@@ -330,6 +277,80 @@ def design(
             != ""
         ),
     )
+
+
+def _check_options(observables, sigma, n, ridge, perturbation) -> tuple[tuple, dict]:
+    """``design``'s options checked (``FitError``); the observables and sigmas."""
+    observables = tuple(observables)
+    if not observables:
+        raise FitError("observables: name at least one of " + ", ".join(DESIGN_OBSERVABLES))
+    for o in observables:
+        if o not in DESIGN_OBSERVABLES:
+            raise FitError(
+                f"observables: unknown or unusable {o!r}; allowed: {', '.join(DESIGN_OBSERVABLES)}"
+            )
+    sigma = dict(sigma or {})
+    for o, s in sigma.items():
+        if o not in observables:
+            raise FitError(f"sigma given for {o!r}, which is not among the observables")
+        if not (math.isfinite(s) and s > 0):
+            raise FitError(f"sigma of {o} must be finite and > 0, got {number_text(s)}")
+    if not (isinstance(n, int | np.integer) and n >= 1):
+        raise FitError(f"n must be an integer >= 1, got {number_text(n)}")
+    if not (ridge > 0 and math.isfinite(ridge)):
+        raise FitError(f"ridge must be > 0, got {number_text(ridge)}")
+    if not 0 < perturbation < 1:
+        raise FitError(f"perturbation must be in (0, 1), got {number_text(perturbation)}")
+    return observables, sigma
+
+
+def _candidates(candidates, observables) -> tuple:
+    """The candidate impacts (read if a path) and their source, checked for the design."""
+    source = ""
+    if not isinstance(candidates, ImpactTable):
+        source = str(candidates)
+        candidates = read_impacts(candidates)
+    if candidates.overrides:
+        raise FitError(
+            f"{source or 'candidates'}: per-impact parameter columns "
+            f"({', '.join(candidates.overrides)}) are not supported in a design"
+        )
+    if "cor_t" in observables and np.any(candidates.angle_deg == 0):
+        raise FitError("observables: cor_t is undefined at normal impacts (angle_deg = 0)")
+
+    return candidates, source
+
+
+def _jacobians(program, names, theta, scale, perturbation, at_draws) -> tuple:
+    """The Jacobians in ln p of every candidate's observables (at ``theta``, or at each draw),
+    which candidates rebound, and which stay on the same side of the capture threshold when
+    a parameter moves by ``perturbation`` (or at every draw)."""
+    rebound_code = jaximpact.Status.REBOUND
+
+    def at(th):
+        """Jacobian in ln p (the solver variable u is ln p except for bounded parameters) and
+        status of every candidate at parameter values ``th``."""
+        _, jac, status = program(to_unbounded(names, th)[None], value=0.0, scale=scale)
+        return jac[0] * (th / dphys_du(names, th))[None, :], status[0]
+
+    jac, status = at(theta)
+    rebound = status == rebound_code
+    stable = rebound.copy()
+    u0 = to_unbounded(names, theta)
+    for i in range(len(names)):
+        for sign in (-1.0, 1.0):
+            u = u0.copy()
+            u[i] = to_unbounded([names[i]], [theta[i] * (1 + sign * perturbation)])[0]
+            _, _, st = program(u[None], value=0.0, scale=scale)
+            stable &= (st[0] == rebound_code) == rebound
+    if at_draws is None:
+        jacs = jac[None]
+    else:  # the information at every draw; captured at any draw: near the threshold
+        per_draw = [at(th) for th in at_draws]
+        jacs = np.stack([j for j, _ in per_draw])
+        for _, st in per_draw:
+            stable &= st == rebound_code
+    return jacs, rebound, stable
 
 
 def _draw_subset(draws, names, max_draws: int):

@@ -84,6 +84,13 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the multi-start spread")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_posterior_options(p)
+    p.set_defaults(func=cmd_fit)
+    return p
+
+
+def _add_posterior_options(p) -> None:
+    """The option groups of ``fit`` for the posterior and the profile likelihood."""
     g = p.add_argument_group(
         "posterior (docs/posterior.md)",
         "--posterior samples the Bayesian posterior after the fit, from a proposal placed by "
@@ -124,8 +131,6 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
     )
     g.add_argument("--profile-points", type=int, default=15, help="grid points (default 15)")
     g.add_argument("--profile-plot", metavar="FILE.png", help="plot of the profile")
-    p.set_defaults(func=cmd_fit)
-    return p
 
 
 def _parse_init(items) -> dict[str, float]:
@@ -224,13 +229,11 @@ def cmd_fit(args) -> int:
     jax.config.update("jax_enable_x64", True)
 
     import jaximpact
-    from jaximpact._io.paths import FileProblem, check_readable, prepare_output, write_failed
     from jaximpact._io.scene_files import describe_scene_source
 
     from ._least_squares.fit import fit
-    from ._least_squares.objective import FITTABLE, FitError, check_names
+    from ._least_squares.objective import FITTABLE, check_names
     from ._least_squares.report import (
-        check_plot_path,
         plot_fit,
         result_dict,
         summary,
@@ -238,6 +241,65 @@ def cmd_fit(args) -> int:
     )
 
     params = split_names("--params", args.params, FITTABLE)
+    scene_path, data_path = _fit_files(args)
+    names = check_names(params)
+    priors = _parse_priors(args.prior, names) if args.posterior else {}
+    posterior_outputs = (
+        (args.draws, "draws file"),
+        (args.corner, "corner plot"),
+        (args.predictive, "predictive plot"),
+    )
+    _check_fit_options(args, names, posterior_outputs)
+    scene = jaximpact.load_scene(scene_path)
+    if args.posterior:  # a bad prior in the scene's [priors] must not cost the fit either
+        from ._bayesian.priors import priors_for
+
+        priors_for(names, priors, scene.priors)
+    _check_fit_outputs(args, posterior_outputs)
+    progress = not args.no_progress
+    result = fit(
+        scene,
+        data_path,
+        names,
+        initial=_parse_init(args.init),
+        solver=args.solver,
+        starts=args.starts,
+        spread=args.spread,
+        seed=args.seed,
+        max_steps=args.max_steps,
+        progress=not args.no_progress,
+    )
+    print(f"scene: {describe_scene_source(scene_path)}")
+    print(summary(result))
+    document = result_dict(result)
+    drawn = lambda what, draw: _drawn(what, draw, progress)  # noqa: E731
+    outputs = [(args.plot, drawn("the fitted model", lambda path: plot_fit(path, result)))]
+    failed = [] if result.converged else [f"fit {result.message}"]
+    if args.profile is not None and result.converged:
+        outputs.append(_fit_profile(args, result, document, drawn, progress))
+    if args.posterior and result.converged:
+        post = _fit_posterior(args, scene, names, priors, result, document, outputs, drawn)
+        if not post.converged:
+            failed.append(f"posterior {post.message}")
+    elif (args.posterior or args.profile) and not result.converged:
+        print("the least-squares fit did not converge: no posterior or profile", file=sys.stderr)
+    outputs.insert(0, (args.output, lambda path: write_json_dict(path, document)))
+    _write_outputs(outputs)
+    if failed:
+        for reason in failed:
+            print(f"error: {reason}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return 0
+
+
+def _fit_files(args) -> tuple:
+    """``[SCENE] DATA`` of ``jaximpact fit``: the scene path (``None``: the default, or an
+    embedded data set's own scene) and the data file, checked readable."""
+    import jaximpact
+    from jaximpact._io.paths import FileProblem, check_readable
+
+    from ._least_squares.objective import FitError
+
     if not args.files:
         for option, items in (("--init", args.init), ("--prior", args.prior)):
             for item in items:
@@ -268,13 +330,13 @@ def cmd_fit(args) -> int:
                 + ", ".join(EMBEDDED_DATA)
                 + ")",
             ) from None
-    names = check_names(params)
-    priors = _parse_priors(args.prior, names) if args.posterior else {}
-    posterior_outputs = (
-        (args.draws, "draws file"),
-        (args.corner, "corner plot"),
-        (args.predictive, "predictive plot"),
-    )
+    return scene_path, data_path
+
+
+def _check_fit_options(args, names, posterior_outputs) -> None:
+    """The options of ``jaximpact fit`` that must agree with each other (``FitError``)."""
+    from ._least_squares.objective import FitError
+
     if not args.posterior:
         for option, (path, _) in zip(
             ("--draws", "--corner", "--predictive"), posterior_outputs, strict=True
@@ -301,12 +363,14 @@ def cmd_fit(args) -> int:
         from ._bayesian.report import import_arviz
 
         import_arviz()
-    scene = jaximpact.load_scene(scene_path)
-    if args.posterior:  # a bad prior in the scene's [priors] must not cost the fit either
-        from ._bayesian.priors import priors_for
 
-        priors_for(names, priors, scene.priors)
-    # Outputs are checked before the fit: a typo in -o must not cost the computation.
+
+def _check_fit_outputs(args, posterior_outputs) -> None:
+    """Outputs are checked before the fit: a typo in -o must not cost the computation."""
+    from jaximpact._io.paths import prepare_output
+
+    from ._least_squares.report import check_plot_path
+
     for option, path in (
         ("--plot", args.plot),
         ("--profile-plot", args.profile_plot),
@@ -323,74 +387,62 @@ def cmd_fit(args) -> int:
     ):
         if path:
             prepare_output(path, what)
-    progress = not args.no_progress
-    result = fit(
+
+
+def _fit_profile(args, result, document, drawn, progress) -> tuple:
+    """``--profile NAME``: the profile, printed and added to ``document``; its plot output."""
+    from ._least_squares.profile import plot_profile, profile, profile_summary
+
+    prof = profile(result, args.profile, points=args.profile_points, progress=progress)
+    print(profile_summary(prof))
+    document["profile"] = prof.as_dict()
+    return (args.profile_plot, drawn("the profile", lambda path: plot_profile(path, prof)))
+
+
+def _fit_posterior(args, scene, names, priors, result, document, outputs, drawn):
+    """``--posterior``: the posterior, printed and added to ``document``, its outputs added to
+    ``outputs``; returns it."""
+    from ._bayesian.posterior import sample_posterior
+    from ._bayesian.report import (
+        add_to_result_dict,
+        plot_corner,
+        plot_predictive,
+        posterior_summary,
+        write_draws,
+    )
+
+    post = sample_posterior(
         scene,
-        data_path,
+        result.objective.observations,
         names,
-        initial=_parse_init(args.init),
-        solver=args.solver,
-        starts=args.starts,
-        spread=args.spread,
+        priors=priors,
+        likelihood=args.likelihood,
+        nu=args.nu,
+        chains=args.chains,
+        draws=args.samples,
+        warmup=args.warmup,
         seed=args.seed,
-        max_steps=args.max_steps,
+        fit_result=result,
+        sampler=args.sampler,
         progress=not args.no_progress,
     )
-    print(f"scene: {describe_scene_source(scene_path)}")
-    print(summary(result))
-    document = result_dict(result)
-    drawn = lambda what, draw: _drawn(what, draw, progress)  # noqa: E731
-    outputs = [(args.plot, drawn("the fitted model", lambda path: plot_fit(path, result)))]
-    failed = [] if result.converged else [f"fit {result.message}"]
-    if args.profile is not None and result.converged:
-        from ._least_squares.profile import plot_profile, profile, profile_summary
+    print(posterior_summary(post))
+    add_to_result_dict(document, post)
+    outputs += [
+        (args.draws, lambda path: write_draws(path, post)),
+        (args.corner, drawn("the posterior draws", lambda path: plot_corner(path, post))),
+        (
+            args.predictive,
+            drawn("the posterior predictive", lambda path: plot_predictive(path, post)),
+        ),
+    ]
+    return post
 
-        prof = profile(result, args.profile, points=args.profile_points, progress=progress)
-        print(profile_summary(prof))
-        document["profile"] = prof.as_dict()
-        outputs.append(
-            (args.profile_plot, drawn("the profile", lambda path: plot_profile(path, prof)))
-        )
-    if args.posterior and result.converged:
-        from ._bayesian.posterior import sample_posterior
-        from ._bayesian.report import (
-            add_to_result_dict,
-            plot_corner,
-            plot_predictive,
-            posterior_summary,
-            write_draws,
-        )
 
-        post = sample_posterior(
-            scene,
-            result.objective.observations,
-            names,
-            priors=priors,
-            likelihood=args.likelihood,
-            nu=args.nu,
-            chains=args.chains,
-            draws=args.samples,
-            warmup=args.warmup,
-            seed=args.seed,
-            fit_result=result,
-            sampler=args.sampler,
-            progress=progress,
-        )
-        print(posterior_summary(post))
-        add_to_result_dict(document, post)
-        outputs += [
-            (args.draws, lambda path: write_draws(path, post)),
-            (args.corner, drawn("the posterior draws", lambda path: plot_corner(path, post))),
-            (
-                args.predictive,
-                drawn("the posterior predictive", lambda path: plot_predictive(path, post)),
-            ),
-        ]
-        if not post.converged:
-            failed.append(f"posterior {post.message}")
-    elif (args.posterior or args.profile) and not result.converged:
-        print("the least-squares fit did not converge: no posterior or profile", file=sys.stderr)
-    outputs.insert(0, (args.output, lambda path: write_json_dict(path, document)))
+def _write_outputs(outputs) -> None:
+    """Each ``(path, write)`` with a path: written, and said so (a failure names the path)."""
+    from jaximpact._io.paths import write_failed
+
     for path, write in outputs:
         if path:
             try:
@@ -398,11 +450,6 @@ def cmd_fit(args) -> int:
             except OSError as err:
                 raise write_failed(path, err) from None
             print(f"wrote {path}")
-    if failed:
-        for reason in failed:
-            print(f"error: {reason}", file=sys.stderr)
-        return EXIT_NOT_CONVERGED
-    return 0
 
 
 def _drawn(what: str, draw, progress: bool):

@@ -391,22 +391,9 @@ def _sample(
     log_density = _log_density(residuals, names, priors, np.asarray(groups), k, likelihood, nu)
     if batch_log_density is None:
         batch_log_density = jax.jit(jax.vmap(log_density))
-    # Starts: the least-squares optimum plus a jitter of `jitter` standard errors.
-    rng = np.random.default_rng(seed)
-    cov_u = np.asarray(cov_u, dtype=float)
-    if not np.all(np.isfinite(cov_u)):
-        cov_u = np.eye(p) * 1e-4
-    chol = np.linalg.cholesky(cov_u + 1e-12 * np.eye(p))
-    u0 = np.asarray(u_center) + jitter * rng.standard_normal((chains, p)) @ chol.T
-    s0 = np.asarray(log_noise_center) + 0.1 * jitter * rng.standard_normal((chains, k))
-    if z0 is None:
-        z0 = np.concatenate([u0, s0], axis=1)
-    metric = np.zeros((p + k, p + k))
-    metric[:p, :p] = cov_u + 1e-12 * np.eye(p)
-    # log of a fitted noise factor: variance about 1 / (2 n_k) for n_k observations
-    for j in range(k):
-        metric[p + j, p + j] = 0.5 / max(int(np.sum(np.asarray(groups) == j)), 1)
-    center = np.concatenate([np.asarray(u_center, float), np.asarray(log_noise_center, float)])
+    z0, metric, center = _starts_and_metric(
+        u_center, cov_u, groups, log_noise_center, p, k, chains, jitter, seed, z0
+    )
     khat, used = math.nan, "hmc"
     if sampler in ("auto", "independence") and not starts_given:
         z, lp, accept, khat, evaluations, t_warm, t_draw = _run_independence(
@@ -439,6 +426,39 @@ def _sample(
             target_accept=target_accept,
             progress=progress,
         )
+    return _posterior_result(
+        names, noise, priors, likelihood, nu, chains, z, lp, divergent, accept, step_size,
+        evaluations, t_warm, t_draw, used, khat,
+    )  # fmt: skip
+
+
+def _starts_and_metric(u_center, cov_u, groups, log_noise_center, p, k, chains, jitter, seed, z0):
+    """The chains' starts (the least-squares optimum plus a jitter of ``jitter`` standard
+    errors, unless ``z0`` is given), the sampler's metric and the center of the proposal."""
+    rng = np.random.default_rng(seed)
+    cov_u = np.asarray(cov_u, dtype=float)
+    if not np.all(np.isfinite(cov_u)):
+        cov_u = np.eye(p) * 1e-4
+    chol = np.linalg.cholesky(cov_u + 1e-12 * np.eye(p))
+    u0 = np.asarray(u_center) + jitter * rng.standard_normal((chains, p)) @ chol.T
+    s0 = np.asarray(log_noise_center) + 0.1 * jitter * rng.standard_normal((chains, k))
+    if z0 is None:
+        z0 = np.concatenate([u0, s0], axis=1)
+    metric = np.zeros((p + k, p + k))
+    metric[:p, :p] = cov_u + 1e-12 * np.eye(p)
+    # log of a fitted noise factor: variance about 1 / (2 n_k) for n_k observations
+    for j in range(k):
+        metric[p + j, p + j] = 0.5 / max(int(np.sum(np.asarray(groups) == j)), 1)
+    center = np.concatenate([np.asarray(u_center, float), np.asarray(log_noise_center, float)])
+    return z0, metric, center
+
+
+def _posterior_result(
+    names, noise, priors, likelihood, nu, chains, z, lp, divergent, accept, step_size,
+    evaluations, t_warm, t_draw, used, khat,
+) -> PosteriorResult:  # fmt: skip
+    """The ``PosteriorResult`` of the chains' draws ``z`` (in ``u`` and log noise)."""
+    p = len(names)
     theta = np.asarray(jax.vmap(jax.vmap(lambda u: to_physical(names, u)))(jnp.asarray(z[..., :p])))
     noise_draws = np.exp(z[..., p:])
     summary = {n: _summarize(theta[..., i]) for i, n in enumerate(names)}
@@ -673,45 +693,24 @@ def sample_posterior(
     """
     t_start = time.perf_counter()
     names = check_names(params)
-    if sampler not in SAMPLERS:
-        raise FitError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
-    if likelihood not in LIKELIHOODS:
-        raise FitError(f"likelihood must be one of {', '.join(LIKELIHOODS)}, got {likelihood!r}")
-    if not nu > 0:
-        raise FitError(f"nu must be > 0, got {nu!r}")
-    for label, value, least in (("chains", chains, 1), ("draws", draws, 4), ("warmup", warmup, 1)):
-        if not (isinstance(value, int) and value >= least):
-            raise FitError(f"{label} must be an integer >= {least}, got {value!r}")
+    _check_options(sampler, likelihood, nu, chains, draws, warmup)
     prior_map = priors_for(names, priors, scene.priors)
     if fit_result is None:
         fit_result = fit(
-            scene,
-            observations,
-            names,
-            initial=initial,
-            starts=starts,
-            progress=progress,
+            scene, observations, names, initial=initial, starts=starts, progress=progress,
             method=method,
-        )
+        )  # fmt: skip
     elif tuple(fit_result.params) != names:
         raise FitError(f"fit_result fits {fit_result.params}, not {names}")
     t_fit = time.perf_counter() - t_start
     objective = fit_result.objective
     theta = fit_result.theta
-    for n, v in zip(names, theta, strict=True):
-        if not math.isfinite(float(prior_map[n].log_density_u(n, to_unbounded([n], [v])[0]))):
-            raise FitError(
-                f"the least-squares {n} = {v:.4g} lies outside its prior {prior_map[n].describe()}"
-            )
+    _check_inside_priors(names, theta, prior_map)
     sampled = _at_tolerance(objective, rtol)
     dpdu = dphys_du(names, theta)
     cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
     groups, noise = _noise_groups(objective)
-    r_fit = np.asarray(fit_result.residuals)
-    log_noise = [
-        math.log(max(float(np.sqrt(np.mean(r_fit[groups == j] ** 2))), 1e-2))
-        for j in range(len(noise))
-    ]
+    log_noise = _initial_log_noise(fit_result, groups, noise)
     result = _sample(
         _model_residuals(sampled, names),
         names,
@@ -744,6 +743,38 @@ def sample_posterior(
         "total": time.perf_counter() - t_start,
     }
     return result
+
+
+def _check_options(sampler, likelihood, nu, chains, draws, warmup) -> None:
+    """``sample_posterior``'s options checked (``FitError`` naming the bad one)."""
+    if sampler not in SAMPLERS:
+        raise FitError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
+    if likelihood not in LIKELIHOODS:
+        raise FitError(f"likelihood must be one of {', '.join(LIKELIHOODS)}, got {likelihood!r}")
+    if not nu > 0:
+        raise FitError(f"nu must be > 0, got {nu!r}")
+    for label, value, least in (("chains", chains, 1), ("draws", draws, 4), ("warmup", warmup, 1)):
+        if not (isinstance(value, int) and value >= least):
+            raise FitError(f"{label} must be an integer >= {least}, got {value!r}")
+
+
+def _check_inside_priors(names, theta, prior_map) -> None:
+    """The least-squares values must lie where the priors have mass."""
+    for n, v in zip(names, theta, strict=True):
+        if not math.isfinite(float(prior_map[n].log_density_u(n, to_unbounded([n], [v])[0]))):
+            raise FitError(
+                f"the least-squares {n} = {v:.4g} lies outside its prior {prior_map[n].describe()}"
+            )
+
+
+def _initial_log_noise(fit_result, groups, noise) -> list[float]:
+    """The log noise factor of each group without sigmas at the least-squares optimum (its
+    rms residual in default scales, at least 0.01)."""
+    r_fit = np.asarray(fit_result.residuals)
+    return [
+        math.log(max(float(np.sqrt(np.mean(r_fit[groups == j] ** 2))), 1e-2))
+        for j in range(len(noise))
+    ]
 
 
 def _model_values(objective: Objective, names):

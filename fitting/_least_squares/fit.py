@@ -43,10 +43,11 @@ from jaximpact._model.ranges import IMPLAUSIBLE, RANGES, implausible
 from jaximpact.tables import number_text
 
 from .._data import Observations, load_observations
+from .diagnose import _diagnose
 from .lm import levenberg_marquardt
 from .objective import FitError, Objective, check_names, get_parameter
 from .program import JACOBIAN_MODES, ResidualProgram
-from .transforms import BOUNDS, dphys_du, to_physical, to_unbounded
+from .transforms import BOUNDS, to_physical, to_unbounded
 
 __all__ = [
     "BOUNDS",
@@ -64,22 +65,6 @@ SOLVERS = ("lm", "adam", "lbfgs")
 
 #: Values of :attr:`FitResult.status`, in the order they are checked.
 STATUSES = ("not converged", "undetermined", "misfit", "converged")
-
-#: Identifiability: a singular value of ``J`` below ``1/MAX_CONDITION`` of the largest is zero
-#: (rank deficient); a parameter whose share of such a direction exceeds ``NULL_SHARE``, or
-#: whose standard error exceeds ``MAX_RELATIVE_STDERR`` of its value, is named as not
-#: identified; correlations beyond ``MAX_CORRELATION`` are warned about.
-MAX_CORRELATION = 0.95
-MAX_CONDITION = 1e8
-NULL_SHARE = 0.1
-#: A parameter whose standard error exceeds this fraction of its value is not determined.
-MAX_RELATIVE_STDERR = 1.0
-
-#: Misfit with sigmas: chi-square p-value below this and reduced chi-square above
-#: ``MISFIT_CHI2``; without sigmas: rms residual above ``MISFIT_RMS`` default scales.
-MISFIT_P_VALUE = 1e-4
-MISFIT_CHI2 = 2.0
-MISFIT_RMS = 10.0
 
 
 @dataclass
@@ -311,20 +296,7 @@ def fit(
     """
     t_start = time.perf_counter()
     names = check_names(params, scene)
-    if solver not in SOLVERS:
-        raise FitError(f"unknown solver {solver!r}; choose from {', '.join(SOLVERS)}")
-    if jacobian not in JACOBIAN_MODES:
-        raise FitError(f"jacobian must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
-    if not (isinstance(starts, int) and starts >= 1):
-        raise FitError(f"starts must be an integer >= 1, got {number_text(starts)}")
-    if not (isinstance(max_steps, int) and max_steps >= 1):
-        raise FitError(f"max_steps must be an integer >= 1, got {number_text(max_steps)}")
-    if not spread > 1:
-        raise FitError(f"spread must be > 1, got {number_text(spread)}")
-    initial = dict(initial or {})
-    for name in initial:
-        if name not in names:
-            raise FitError(f"initial value for {name!r}, which is not fitted ({list(names)})")
+    initial = _check_options(names, solver, jacobian, starts, max_steps, spread, initial)
     p0 = [float(initial.get(n, get_parameter(scene, n))) for n in names]
     u0 = to_unbounded(names, p0)
     points = _start_points(names, u0, starts, spread, seed)
@@ -339,81 +311,179 @@ def fit(
 
     t0 = time.perf_counter()
     if solver == "lm":
-        bar = tqdm(
-            total=max_steps,
-            desc=f"fit (lm, {len(points)} start{'s' if len(points) > 1 else ''})",
-            unit="it",
-            disable=not progress,
-            file=sys.stderr,
-            leave=False,
-        )
-
-        def on_iteration(k, cost, active):
-            bar.update(1)
-            bar.set_postfix(cost=f"{np.min(cost):.4g}", running=int(np.sum(active)))
-
-        try:
-            out = levenberg_marquardt(
-                program,
-                points,
-                rtol=rtol,
-                atol=atol,
-                max_steps=max_steps,
-                on_iteration=on_iteration,
-            )
-        finally:
-            bar.close()
-        U, r_all, jac_all, status_all = out.u, out.r, out.jac, out.status
-        ok_all, steps_all, messages = out.converged, out.steps, out.message
+        out = _solve_lm(program, points, rtol, atol, max_steps, progress)
     else:
-        solve = _optax_solver(objective, names, solver, learning_rate, rtol, atol, max_steps)
-        t1 = time.perf_counter()
-        if progress:
-            print(f"compiling the {solver} loop ...", end="", file=sys.stderr, flush=True)
-        with runtime_checks_as_nan():
-            compiled = jax.jit(solve).lower(jnp.asarray(points[0], _dtype())).compile()
-        loop_compile = time.perf_counter() - t1
-        if progress:
-            print(f" {loop_compile:.1f} s", file=sys.stderr, flush=True)
+        out, loop_compile = _solve_optax(
+            objective, program, names, points, solver, learning_rate, rtol, atol, max_steps,
+            progress,
+        )  # fmt: skip
         t_compile += loop_compile
-        finals, ok_all, steps_all = [], [], []
-        for k in tqdm(
-            range(len(points)),
-            desc=f"fit ({solver})",
-            unit="start",
-            disable=not progress,
-            file=sys.stderr,
-            leave=False,
-        ):
-            u, ok, steps = compiled(jnp.asarray(points[k], _dtype()))
-            finals.append(np.asarray(u))
-            ok_all.append(bool(ok))
-            steps_all.append(int(steps))
-        U = np.stack(finals)
-        r_all, jac_all, status_all = program(U)
-        messages = [
-            "converged" if ok else f"iteration limit ({max_steps}) reached" for ok in ok_all
-        ]
     t_solve = time.perf_counter() - t0
 
-    runs = []
-    for k in range(len(points)):
-        cost = 0.5 * float(np.sum(r_all[k] ** 2))
-        ok = bool(ok_all[k]) and math.isfinite(cost)
-        message = "non-finite cost" if ok_all[k] and not ok else messages[k]
-        start = StartResult(
-            start_values[k], _physical(names, U[k]), cost, ok, int(steps_all[k]), message
-        )
-        runs.append((start, r_all[k], jac_all[k], status_all[k]))
+    runs = _ranked_runs(names, start_values, out)
+    timings = {"compile": t_compile, "solve": t_solve}
+    return _fit_result(objective, program, names, runs, starts, solver, jacobian, timings, t_start)
 
-    # Best start: lowest cost among converged starts, else lowest cost overall.
-    runs.sort(key=lambda run: (not run[0].converged, run[0].cost))
+
+def _fit_result(objective, program, names, runs, starts, solver, jacobian, timings, t_start):
+    """The ``FitResult`` of the best start: its diagnosis, verdict, problems and warnings."""
     best, residuals, jac, status = runs[0]
     theta = np.array([best.values[n] for n in names])
-    n_failed = int(np.sum(status >= jaximpact.Status.MAX_STEPS))
     n, p = objective.n_data, len(names)
     d = _diagnose(jac, best.cost, n, names, theta, objective.sigma_known)
+    status_name, problems, warnings, scene_values = _verdict(
+        objective, names, theta, runs, status, d, starts
+    )
+    message = status_name if not problems else f"{status_name}: " + "; ".join(problems)
+    return FitResult(
+        params=names,
+        values=dict(best.values),
+        stderr=d["stderr"],
+        correlation=d["correlation"],
+        covariance=d["covariance"],
+        cost=best.cost,
+        converged=status_name == "converged",
+        n_data=n,
+        condition_number=d["condition_number"],
+        residual_scale=d["residual_scale"],
+        warnings=warnings,
+        timings={**timings, "total": time.perf_counter() - t_start},
+        solver=solver,
+        starts=[run[0] for run in runs],
+        residuals=residuals,
+        scene=objective.scene_at(scene_values),
+        objective=objective,
+        message=message,
+        status=status_name,
+        optimizer_converged=best.converged,
+        problems=problems,
+        dof=n - p,
+        rank=d["rank"],
+        singular_values=d["singular_values"],
+        sensitivity=d["sensitivity"],
+        unidentifiable=d["unidentifiable"],
+        reduced_chi2=d["reduced_chi2"],
+        p_value=d["p_value"],
+        rms_residual=math.sqrt(2 * best.cost / n) if math.isfinite(best.cost) else math.nan,
+        jacobian=jacobian,
+        program=dict(program.stats),
+    )
 
+
+def _check_options(names, solver, jacobian, starts, max_steps, spread, initial) -> dict:
+    """``fit``'s options checked (``FitError`` naming the bad one); the initial values."""
+    if solver not in SOLVERS:
+        raise FitError(f"unknown solver {solver!r}; choose from {', '.join(SOLVERS)}")
+    if jacobian not in JACOBIAN_MODES:
+        raise FitError(f"jacobian must be one of {', '.join(JACOBIAN_MODES)}, got {jacobian!r}")
+    if not (isinstance(starts, int) and starts >= 1):
+        raise FitError(f"starts must be an integer >= 1, got {number_text(starts)}")
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise FitError(f"max_steps must be an integer >= 1, got {number_text(max_steps)}")
+    if not spread > 1:
+        raise FitError(f"spread must be > 1, got {number_text(spread)}")
+    initial = dict(initial or {})
+    for name in initial:
+        if name not in names:
+            raise FitError(f"initial value for {name!r}, which is not fitted ({list(names)})")
+    return initial
+
+
+@dataclass
+class _Solved:
+    """Every start's end point ``u``, residuals, Jacobian, impact status and convergence."""
+
+    u: np.ndarray
+    r: np.ndarray
+    jac: np.ndarray
+    status: np.ndarray
+    converged: list
+    steps: list
+    message: list
+
+
+def _solve_lm(program, points, rtol, atol, max_steps, progress) -> _Solved:
+    """All starts by Levenberg-Marquardt as one batch, with a progress bar."""
+    bar = tqdm(
+        total=max_steps,
+        desc=f"fit (lm, {len(points)} start{'s' if len(points) > 1 else ''})",
+        unit="it",
+        disable=not progress,
+        file=sys.stderr,
+        leave=False,
+    )
+
+    def on_iteration(k, cost, active):
+        bar.update(1)
+        bar.set_postfix(cost=f"{np.min(cost):.4g}", running=int(np.sum(active)))
+
+    try:
+        out = levenberg_marquardt(
+            program,
+            points,
+            rtol=rtol,
+            atol=atol,
+            max_steps=max_steps,
+            on_iteration=on_iteration,
+        )
+    finally:
+        bar.close()
+    return _Solved(out.u, out.r, out.jac, out.status, out.converged, out.steps, out.message)
+
+
+def _solve_optax(
+    objective, program, names, points, solver, learning_rate, rtol, atol, max_steps, progress
+) -> tuple[_Solved, float]:
+    """Each start in turn by an optax solver (its loop compiled once); the compile time."""
+    solve = _optax_solver(objective, names, solver, learning_rate, rtol, atol, max_steps)
+    t1 = time.perf_counter()
+    if progress:
+        print(f"compiling the {solver} loop ...", end="", file=sys.stderr, flush=True)
+    with runtime_checks_as_nan():
+        compiled = jax.jit(solve).lower(jnp.asarray(points[0], _dtype())).compile()
+    loop_compile = time.perf_counter() - t1
+    if progress:
+        print(f" {loop_compile:.1f} s", file=sys.stderr, flush=True)
+    finals, ok_all, steps_all = [], [], []
+    for k in tqdm(
+        range(len(points)),
+        desc=f"fit ({solver})",
+        unit="start",
+        disable=not progress,
+        file=sys.stderr,
+        leave=False,
+    ):
+        u, ok, steps = compiled(jnp.asarray(points[k], _dtype()))
+        finals.append(np.asarray(u))
+        ok_all.append(bool(ok))
+        steps_all.append(int(steps))
+    U = np.stack(finals)
+    r_all, jac_all, status_all = program(U)
+    messages = ["converged" if ok else f"iteration limit ({max_steps}) reached" for ok in ok_all]
+    return _Solved(U, r_all, jac_all, status_all, ok_all, steps_all, messages), loop_compile
+
+
+def _ranked_runs(names, start_values, out: _Solved) -> list:
+    """``(StartResult, residuals, Jacobian, status)`` of each start, the best first: lowest
+    cost among converged starts, else lowest cost overall."""
+    runs = []
+    for k in range(len(start_values)):
+        cost = 0.5 * float(np.sum(out.r[k] ** 2))
+        ok = bool(out.converged[k]) and math.isfinite(cost)
+        message = "non-finite cost" if out.converged[k] and not ok else out.message[k]
+        start = StartResult(
+            start_values[k], _physical(names, out.u[k]), cost, ok, int(out.steps[k]), message
+        )
+        runs.append((start, out.r[k], out.jac[k], out.status[k]))
+    runs.sort(key=lambda run: (not run[0].converged, run[0].cost))
+    return runs
+
+
+def _verdict(objective, names, theta, runs, status, d, starts) -> tuple:
+    """The fit's status name, its problems and warnings, and the values for its scene (a
+    value outside its documented range replaced by the nearest inside)."""
+    best = runs[0][0]
+    n_failed = int(np.sum(status >= jaximpact.Status.MAX_STEPS))
     warnings, problems = list(d["warnings"]), []
     if not best.converged:
         problems.append(f"the optimizer did not converge: {best.message}")
@@ -441,6 +511,23 @@ def fit(
         nm: float(np.clip(v, RANGES[nm].lo, RANGES[nm].hi)) if nm in outside else v
         for nm, v in best.values.items()
     }
+    warnings += _value_warnings(objective, names, theta, runs, starts, scene_values)
+    if not best.converged or n_failed or n_captured or outside:
+        status_name = "not converged"
+    elif d["undetermined"]:
+        status_name = "undetermined"
+    elif d["misfit"]:
+        status_name = "misfit"
+    else:
+        status_name = "converged"
+    return status_name, problems, warnings, scene_values
+
+
+def _value_warnings(objective, names, theta, runs, starts, scene_values) -> list[str]:
+    """Warnings on the fitted values: implausible impacts, a value at its bound, starts that
+    converged to different minima."""
+    warnings = []
+    best = runs[0][0]
     implausible_at = _implausible_impacts(objective, objective.scene_at(scene_values))
     if implausible_at:
         warnings.append(
@@ -460,52 +547,7 @@ def fit(
                 f"{n_conv} of {starts} starts converged, not all to the same minimum "
                 f"(costs {min(spread_costs):.6g} .. {max(spread_costs):.6g})"
             )
-    if not best.converged or n_failed or n_captured or outside:
-        status_name = "not converged"
-    elif d["undetermined"]:
-        status_name = "undetermined"
-    elif d["misfit"]:
-        status_name = "misfit"
-    else:
-        status_name = "converged"
-    message = status_name if not problems else f"{status_name}: " + "; ".join(problems)
-    return FitResult(
-        params=names,
-        values=dict(best.values),
-        stderr=d["stderr"],
-        correlation=d["correlation"],
-        covariance=d["covariance"],
-        cost=best.cost,
-        converged=status_name == "converged",
-        n_data=n,
-        condition_number=d["condition_number"],
-        residual_scale=d["residual_scale"],
-        warnings=warnings,
-        timings={
-            "compile": t_compile,
-            "solve": t_solve,
-            "total": time.perf_counter() - t_start,
-        },
-        solver=solver,
-        starts=[run[0] for run in runs],
-        residuals=residuals,
-        scene=objective.scene_at(scene_values),
-        objective=objective,
-        message=message,
-        status=status_name,
-        optimizer_converged=best.converged,
-        problems=problems,
-        dof=n - p,
-        rank=d["rank"],
-        singular_values=d["singular_values"],
-        sensitivity=d["sensitivity"],
-        unidentifiable=d["unidentifiable"],
-        reduced_chi2=d["reduced_chi2"],
-        p_value=d["p_value"],
-        rms_residual=math.sqrt(2 * best.cost / n) if math.isfinite(best.cost) else math.nan,
-        jacobian=jacobian,
-        program=dict(program.stats),
-    )
+    return warnings
 
 
 def check_enough_observations(observations: Observations, names: Sequence[str]) -> None:
@@ -582,147 +624,3 @@ def _capture_mismatch(objective: Objective, status) -> int:
     rebound = (obs.observable != "captured") | (obs.value < 0.5)
     captured = np.asarray(status)[obs.impact_index] == jaximpact.Status.CAPTURED
     return int(np.unique(obs.impact_index[rebound & captured]).size)
-
-
-def _diagnose(jac, cost, n, names, theta, sigma_known) -> dict:
-    """Uncertainty, identifiability and misfit from the Jacobian ``jac`` in ``u`` at the optimum.
-
-    Returns a dict: ``stderr``, ``covariance``, ``correlation``, ``rank``,
-    ``condition_number``, ``singular_values``, ``sensitivity``, ``unidentifiable``,
-    ``reduced_chi2``, ``p_value``, ``residual_scale``, and the messages ``warnings``,
-    ``undetermined`` and ``misfit`` (lists of strings).
-    """
-    p = len(names)
-    dof = n - p
-    dpdu = dphys_du(names, theta)
-    warnings, undetermined, misfit = [], [], []
-    nan_pp = np.full((p, p), np.nan)
-    out = {
-        "stderr": dict.fromkeys(names, math.nan),
-        "covariance": nan_pp,
-        "correlation": nan_pp.copy(),
-        "rank": 0,
-        "condition_number": math.inf,
-        "singular_values": np.full(p, np.nan),
-        "sensitivity": dict.fromkeys(names, math.nan),
-        "unidentifiable": list(names),
-        "reduced_chi2": math.nan,
-        "p_value": math.nan,
-        "residual_scale": math.nan,
-    }
-    if sigma_known:
-        s2 = 1.0
-    elif dof > 0:
-        s2 = 2 * cost / dof
-    else:
-        s2 = math.nan
-        undetermined.append(
-            f"{_count(n, 'observation')} for {_count(p, 'parameter')} and no sigmas: no "
-            "residual variance, so no standard errors"
-        )
-    out["residual_scale"] = math.sqrt(s2) if math.isfinite(s2) else math.nan
-
-    if sigma_known and dof > 0 and math.isfinite(cost):
-        from scipy.stats import chi2
-
-        out["reduced_chi2"] = 2 * cost / dof
-        out["p_value"] = float(chi2.sf(2 * cost, dof))
-        if out["p_value"] < MISFIT_P_VALUE and out["reduced_chi2"] > MISFIT_CHI2:
-            misfit.append(
-                f"the model does not describe the data: reduced chi-square "
-                f"{out['reduced_chi2']:.3g} for {dof} degrees of freedom (expected 1 +- "
-                f"{math.sqrt(2 / dof):.2g}; p = {out['p_value']:.2g})"
-            )
-    elif not sigma_known and dof > 0 and math.isfinite(s2) and math.sqrt(s2) > MISFIT_RMS:
-        misfit.append(
-            f"the model does not describe the data: the residuals are {math.sqrt(s2):.3g} "
-            f"default scales (rms, {dof} degrees of freedom), more than {MISFIT_RMS:g} (with "
-            "sigmas given, this would be a reduced chi-square of about "
-            f"{s2:.3g})"
-        )
-
-    if not np.all(np.isfinite(jac)):
-        undetermined.append("the Jacobian is not finite at the optimum")
-        out.update(warnings=warnings, undetermined=undetermined, misfit=misfit)
-        return out
-
-    # Sensitivity per relative change: |dr/d ln p| = |dr/du| p / (dp/du).
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sens = np.linalg.norm(jac, axis=0) * np.abs(theta) / np.abs(dpdu)
-    out["sensitivity"] = {nm: float(v) for nm, v in zip(names, sens, strict=True)}
-    # Every one of the p directions, also where there are fewer residuals than parameters:
-    # the directions no residual sees have singular value 0 (a full V, zeros appended).
-    _, sv, vt = np.linalg.svd(jac, full_matrices=True)
-    sv = np.concatenate([sv, np.zeros(p - sv.size)])
-    out["singular_values"] = sv
-    keep = sv > sv[0] / MAX_CONDITION if sv[0] > 0 else np.zeros(p, bool)
-    out["rank"] = int(np.sum(keep))
-    out["condition_number"] = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
-    null = vt[~keep]
-    bad = np.any(np.abs(null) > NULL_SHARE, axis=0) if null.size else np.zeros(p, bool)
-    out["unidentifiable"] = [nm for nm, b in zip(names, bad, strict=True) if b]
-    if out["rank"] < p:
-        combos = []
-        for v in null:
-            terms = [
-                f"{v[j]:+.2f} {names[j]}" for j in np.argsort(-np.abs(v)) if abs(v[j]) > NULL_SHARE
-            ]
-            combos.append(" ".join(terms))
-        cond = out["condition_number"]
-        why = (
-            f"{_count(int(np.sum(sv == 0)), 'direction')} with no sensitivity at all"
-            if not math.isfinite(cond)
-            else f"condition number {cond:.3g}, above the limit {MAX_CONDITION:g}"
-        )
-        undetermined.append(
-            f"the data do not determine {', '.join(out['unidentifiable'])}: the Jacobian has "
-            f"rank {out['rank']} of {p} ({why}); undetermined direction(s) in "
-            "log-parameters: " + "; ".join(combos)
-        )
-
-    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
-    cov_u = (vt.T * inv) @ vt * s2
-    cov_u[bad, :] = np.nan
-    cov_u[:, bad] = np.nan
-    cov_u[bad, bad] = np.inf
-    cov = cov_u * np.outer(dpdu, dpdu)
-    d = np.sqrt(np.abs(np.diag(cov_u)))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_u / np.outer(d, d)
-    np.fill_diagonal(corr, np.where(np.isfinite(np.diag(cov_u)), 1.0, np.nan))
-    out["covariance"], out["correlation"] = cov, corr
-    out["stderr"] = {
-        nm: float(np.sqrt(cov[i, i])) if cov[i, i] >= 0 else math.nan for i, nm in enumerate(names)
-    }
-    if out["rank"] == p and not all(math.isfinite(e) for e in out["stderr"].values()):
-        if not undetermined:
-            undetermined.append("the standard errors are not finite")
-    # Full rank, but a standard error beyond the value itself: not determined either.
-    rel = {
-        nm: out["stderr"][nm] / abs(v) if v != 0 else math.inf
-        for nm, v in zip(names, theta, strict=True)
-    }
-    loose = [nm for nm in names if math.isfinite(rel[nm]) and rel[nm] > MAX_RELATIVE_STDERR]
-    if out["rank"] == p and loose:
-        v = vt[-1]
-        combo = " ".join(
-            f"{v[j]:+.2f} {names[j]}" for j in np.argsort(-np.abs(v)) if abs(v[j]) > NULL_SHARE
-        )
-        undetermined.append(
-            f"the data do not determine {', '.join(loose)}: relative standard error "
-            + ", ".join(f"{100 * rel[nm]:.3g} %" for nm in loose)
-            + f" (> {100 * MAX_RELATIVE_STDERR:g} %); the least determined direction in "
-            f"log-parameters is {combo} (condition number {out['condition_number']:.3g})"
-        )
-        out["unidentifiable"] = [nm for nm in names if nm in loose]
-    if out["rank"] == p:
-        for i in range(p):
-            for j in range(i + 1, p):
-                if abs(corr[i, j]) > MAX_CORRELATION:
-                    warnings.append(
-                        f"strongly correlated: {names[i]} and {names[j]} (corr "
-                        f"{corr[i, j]:+.3f}); the data determine a combination of them "
-                        "better than each one"
-                    )
-    out.update(warnings=warnings, undetermined=undetermined, misfit=misfit)
-    return out

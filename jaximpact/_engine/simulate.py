@@ -398,7 +398,23 @@ def _lean_supported(prob: _Problem) -> bool:
 def _outputs(terms: dyn.Terms, prob: _Problem, speed, omega0, sol):
     """The ``ImpactResult`` fields (SI) of one solved impact: the exit shell, status, energies."""
     dtype = jnp.result_type(speed)
-    p, u, v_n, v_t, entry = prob.p, prob.u, prob.v_n, prob.v_t, prob.entry
+    y, t_end, status = _final_state(terms, prob, sol)
+    failed = status >= Status.MAX_STEPS
+    rebound = status == Status.REBOUND
+
+    out, losses = _output_fields(terms, prob, omega0, y, t_end, rebound, dtype)
+    nan = jnp.asarray(jnp.nan, dtype)
+    if not terms.ledger:
+        ledger = ("energy_in", "energy_out", "energy_tangential", *losses)
+        out.update({k: nan for k in ledger if k in out})
+    out = {k: jnp.where(failed, nan, v).astype(dtype) for k, v in out.items()}
+    return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
+
+
+def _final_state(terms: dyn.Terms, prob: _Problem, sol):
+    """The state at the end of the impact (the exit shell crossed in closed form after a
+    rebound, the entry shell's contributions added), its time and its status code."""
+    p, entry = prob.p, prob.entry
     entry_friction = prob.entry_friction
     floor = terms.contact_floor
     y = jax.tree_util.tree_map(lambda x: x[-1], sol.ys)
@@ -449,9 +465,13 @@ def _outputs(terms: dyn.Terms, prob: _Problem, speed, omega0, sol):
             ),
         ),
     )
-    failed = status >= Status.MAX_STEPS
-    rebound = status == Status.REBOUND
+    return y, t_end, status
 
+
+def _output_fields(terms: dyn.Terms, prob: _Problem, omega0, y, t_end, rebound, dtype):
+    """The output fields in SI from the final state (before failed impacts are masked), and
+    the energy losses among them."""
+    p, u, v_n, v_t = prob.p, prob.u, prob.v_n, prob.v_t
     nan = jnp.asarray(jnp.nan, dtype)
     vt = y["vt"] if terms.tangential else jnp.zeros((), dtype)
     w = y["w"] if terms.rotation else jnp.zeros((), dtype)
@@ -497,11 +517,7 @@ def _outputs(terms: dyn.Terms, prob: _Problem, speed, omega0, sol):
     )
     if terms.mindlin:  # the part of energy_out held by the spring (0 after a rebound)
         out["energy_tangential"] = dyn.tangential_energy(terms, p, y) * e_unit
-    if not terms.ledger:
-        ledger = ("energy_in", "energy_out", "energy_tangential", *losses)
-        out.update({k: nan for k in ledger if k in out})
-    out = {k: jnp.where(failed, nan, v).astype(dtype) for k, v in out.items()}
-    return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
+    return out, losses
 
 
 # ``simulate(program=...)``: what the program is made for -> the form of Tsit5's stage sums.

@@ -61,19 +61,30 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
     ``step(state, args) -> state`` and ``finish(state, args) -> LeanSolution``, called in
     that order they are :func:`diffeqsolve_lean`; :func:`solve_pool` calls them on lanes
     that change impacts. ``y0``: an initial state (or a batch of them), for its float type."""
-    dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
-    # diffrax's clip of the last step to t1 (a constant here: t1 is a Python number)
-    t1_clip_floor = np.asarray(t1, dtype)
-    for _ in range(100):
-        t1_clip_floor = np.nextafter(t1_clip_floor, np.asarray(-np.inf, dtype))
-    t0, t1, dt0 = (jnp.asarray(x, dtype) for x in (t0, t1, dt0))
-    controller = stepsize_controller
-    cond_fn = event.cond_fn
-    error_order = solver.error_order(term)
+    lane = _Lane(term, solver, t0, t1, dt0, y0, event, stepsize_controller, max_steps)
+    return lane.init, lane.running, lane.step, lane.finish
 
-    def init(y0, args):
-        tnext, controller_state = controller.init(
-            term, t0, t1, y0, dt0, args, solver.func, error_order
+
+class _Lane:
+    """One lane's solve in pieces (:func:`lane_functions`); the state is a dict."""
+
+    def __init__(self, term, solver, t0, t1, dt0, y0, event, stepsize_controller, max_steps):
+        dtype = jnp.result_type(*jax.tree_util.tree_leaves(y0))
+        # diffrax's clip of the last step to t1 (a constant here: t1 is a Python number)
+        t1_clip_floor = np.asarray(t1, dtype)
+        for _ in range(100):
+            t1_clip_floor = np.nextafter(t1_clip_floor, np.asarray(-np.inf, dtype))
+        self.t1_clip_floor = t1_clip_floor
+        self.t0, self.t1, self.dt0 = (jnp.asarray(x, dtype) for x in (t0, t1, dt0))
+        self.term, self.solver, self.event, self.max_steps = term, solver, event, max_steps
+        self.controller = stepsize_controller
+        self.cond_fn = event.cond_fn
+        self.error_order = solver.error_order(term)
+
+    def init(self, y0, args):
+        term, solver, t0, t1 = self.term, self.solver, self.t0, self.t1
+        tnext, controller_state = self.controller.init(
+            term, t0, t1, y0, self.dt0, args, solver.func, self.error_order
         )
         tnext = jnp.minimum(tnext, t1)
         solver_state = solver.init(term, t0, tnext, y0, args)
@@ -86,7 +97,7 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
             num_steps=jnp.zeros((), jnp.int32),
             result=RESULTS.where(jnp.zeros((), bool), RESULTS.successful, RESULTS.successful),
             event=jnp.zeros((), bool),
-            value=cond_fn(t0, y0, args),
+            value=self.cond_fn(t0, y0, args),
             # the last attempted step, to repeat it in finish
             ev_tprev=t0,
             ev_tnext=t0,
@@ -94,22 +105,24 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
             ev_state=solver_state,
         )
 
-    def unfinished(s):  # diffrax's cond_fun
-        return (s["tprev"] < t1) & is_successful(s["result"])
+    def unfinished(self, s):  # diffrax's cond_fun
+        return (s["tprev"] < self.t1) & is_successful(s["result"])
 
-    def running(s):
-        return unfinished(s) & (s["num_steps"] < max_steps)
+    def running(self, s):
+        return self.unfinished(s) & (s["num_steps"] < self.max_steps)
 
-    def step(s, args):
-        y1, y_error, _, new_state, step_result = solver.step(
-            term, s["tprev"], s["tnext"], s["y"], args, s["solver_state"], False
+    def step(self, s, args):
+        t1 = self.t1
+        y1, y_error, _, new_state, step_result = self.solver.step(
+            self.term, s["tprev"], s["tnext"], s["y"], args, s["solver_state"], False
         )
         y_error = jax.tree_util.tree_map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
-        keep, tprev, tnext, _, controller_state, ctrl_result = controller.adapt_step_size(
-            s["tprev"], s["tnext"], s["y"], y1, args, y_error, error_order, s["controller_state"]
-        )
+        keep, tprev, tnext, _, controller_state, ctrl_result = self.controller.adapt_step_size(
+            s["tprev"], s["tnext"], s["y"], y1, args, y_error, self.error_order,
+            s["controller_state"],
+        )  # fmt: skip
         tprev = jnp.minimum(tprev, t1)
-        clip = tnext > t1_clip_floor
+        clip = tnext > self.t1_clip_floor
         tnext = jnp.where(clip, jnp.where(keep, t1, tprev + 0.5 * (t1 - tprev)), tnext)
         select = lambda a, b: jax.tree_util.tree_map(  # noqa: E731
             lambda u, v: jnp.where(keep, u, v), a, b
@@ -119,7 +132,7 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
         result = RESULTS.where(keep, step_result, RESULTS.successful)
         result = RESULTS.where(is_okay(s["result"]), result, s["result"])
         result = RESULTS.where(is_okay(result), ctrl_result, result)
-        value = cond_fn(tprev, y, args)
+        value = self.cond_fn(tprev, y, args)
         event = (jnp.sign(s["value"]) > 0) & (jnp.sign(value) <= 0)
         result = RESULTS.where(event, RESULTS.event_occurred, result)
         return dict(
@@ -138,34 +151,15 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
             ev_state=s["solver_state"],
         )
 
-    def finish(s, args):
+    def finish(self, s, args):
         result = s["result"]
         happened = s["event"]
-
-        def root_find():
-            _, _, dense_info, _, _ = solver.step(
-                term, s["ev_tprev"], s["ev_tnext"], s["ev_y"], args, s["ev_state"], False
-            )
-            interp = solver.interpolation_cls(t0=s["ev_tprev"], t1=s["ev_tnext"], **dense_info)
-
-            def event_value(t, y):  # lanes without an event: the end of the step
-                return jnp.where(happened, cond_fn(t, y, args), s["ev_tnext"] - t)
-
-            t_event, y, found = _event.locate(
-                interp.evaluate,
-                event_value,
-                s["ev_tprev"],
-                s["ev_tnext"],
-                event.root_finder.rtol,
-                event.root_finder.atol,
-            )
-            y = jax.tree_util.tree_map(lambda a, b: jnp.where(s["num_steps"] == 0, a, b), s["y"], y)
-            return t_event, y, RESULTS.where(found, result, RESULTS.nonlinear_divergence)
-
         tfinal, yfinal, result = jax.lax.cond(
-            eqxi.unvmap_any(happened), root_find, lambda: (s["tprev"], s["y"], result)
+            eqxi.unvmap_any(happened),
+            lambda: self.root_find(s, args, result, happened),
+            lambda: (s["tprev"], s["y"], result),
         )
-        result = RESULTS.where(unfinished(s), RESULTS.max_steps_reached, result)
+        result = RESULTS.where(self.unfinished(s), RESULTS.max_steps_reached, result)
         return LeanSolution(
             ts=tfinal[None],
             ys=jax.tree_util.tree_map(lambda x: x[None], yfinal),
@@ -173,7 +167,27 @@ def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller,
             stats={"num_steps": s["num_steps"]},
         )
 
-    return init, running, step, finish
+    def root_find(self, s, args, result, happened):
+        """The event's time and state in the last step (lanes without one: the step's end)."""
+        solver, cond_fn = self.solver, self.cond_fn
+        _, _, dense_info, _, _ = solver.step(
+            self.term, s["ev_tprev"], s["ev_tnext"], s["ev_y"], args, s["ev_state"], False
+        )
+        interp = solver.interpolation_cls(t0=s["ev_tprev"], t1=s["ev_tnext"], **dense_info)
+
+        def event_value(t, y):  # lanes without an event: the end of the step
+            return jnp.where(happened, cond_fn(t, y, args), s["ev_tnext"] - t)
+
+        t_event, y, found = _event.locate(
+            interp.evaluate,
+            event_value,
+            s["ev_tprev"],
+            s["ev_tnext"],
+            self.event.root_finder.rtol,
+            self.event.root_finder.atol,
+        )
+        y = jax.tree_util.tree_map(lambda a, b: jnp.where(s["num_steps"] == 0, a, b), s["y"], y)
+        return t_event, y, RESULTS.where(found, result, RESULTS.nonlinear_divergence)
 
 
 def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, **options):

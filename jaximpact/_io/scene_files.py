@@ -130,6 +130,28 @@ def load_scene(path=None) -> Scene:
 
 def scene_from_dict(data: dict) -> Scene:
     """Build a ``Scene`` from the nested dict of a scene file (same rules as `load_scene`)."""
+    _check_sections(data)
+    number = _numbers(data)
+    particle = Particle(radius=number("particle", "radius"), density=number("particle", "density"))
+    contact, f0, G_star = _contact(data, particle)
+    model = _model(data, f0, G_star)
+    impact = Impact(
+        speed=number("impact", "speed", 1.0),
+        angle_deg=number("impact", "angle_deg", 0.0),
+        omega0=number("impact", "omega0", 0.0),
+    )
+    return Scene(
+        particle=particle,
+        contact=contact,
+        model=model,
+        impact=impact,
+        solver=_solver(data),
+        priors=_priors(data),
+    )
+
+
+def _check_sections(data: dict) -> None:
+    """Only known sections and keys, and the required sections."""
     unknown = set(data) - set(ALLOWED)
     if unknown:
         raise SceneError(f"unknown section(s) {sorted(unknown)}; allowed: {sorted(ALLOWED)}")
@@ -146,6 +168,10 @@ def scene_from_dict(data: dict) -> Scene:
         if section not in data:
             raise SceneError(f"missing section [{section}]")
 
+
+def _numbers(data: dict):
+    """``number(section, key, default=None)``: a finite number of ``data`` (or the default)."""
+
     def number(section, key, default=None):
         value = data.get(section, {}).get(key, default)
         if value is None:
@@ -156,10 +182,17 @@ def scene_from_dict(data: dict) -> Scene:
             raise SceneError(f"{section}.{key} must be finite, got {value!r}")
         return float(value)
 
+    return number
+
+
+def _contact(data: dict, particle: Particle) -> tuple:
+    """The ``[contact]`` section (K or the elastic moduli, damping or zeta, f0, friction, G*),
+    with its f0 and G* as numbers."""
+    number = _numbers(data)
+
     def has(section, key):
         return key in data.get(section, {})
 
-    particle = Particle(radius=number("particle", "radius"), density=number("particle", "density"))
     c = data["contact"]
     elastic = [k for k in ("E1", "nu1", "E2", "nu2") if k in c]
     if has("contact", "K") and elastic:
@@ -207,7 +240,12 @@ def scene_from_dict(data: dict) -> Scene:
         friction=number("contact", "friction", 0.0),
         G_star=G_star,
     )
+    return contact, f0, G_star
 
+
+def _model(data: dict, f0: float, G_star: float) -> Model:
+    """The ``[model]`` switches, checked against the contact parameters they need."""
+    number = _numbers(data)
     m = data.get("model", {})
     for key in ("rotation", "adhesion"):
         if key in m and not isinstance(m[key], bool):
@@ -230,13 +268,12 @@ def scene_from_dict(data: dict) -> Scene:
         )
     if model.rolling_moments == "lambda" and "lambda" not in m:
         raise SceneError('model.rolling_moments = "lambda" needs model.lambda (N m)')
+    return model
 
-    impact = Impact(
-        speed=number("impact", "speed", 1.0),
-        angle_deg=number("impact", "angle_deg", 0.0),
-        omega0=number("impact", "omega0", 0.0),
-    )
 
+def _solver(data: dict) -> Solver:
+    """The ``[solver]`` settings."""
+    number = _numbers(data)
     s = data.get("solver", {})
     if "max_steps" in s and (
         isinstance(s["max_steps"], bool) or not isinstance(s["max_steps"], int)
@@ -249,6 +286,11 @@ def scene_from_dict(data: dict) -> Scene:
     text_keys = ("method", "max_steps", "outputs")
     solver_kwargs = {k: (v if k in text_keys else number("solver", k)) for k, v in s.items()}
     solver = Solver(**solver_kwargs)
+    return solver
+
+
+def _priors(data: dict) -> tuple:
+    """The ``[priors]`` of a fit: ``(name, spec)`` pairs, sorted by name."""
     priors = []
     for name, spec in sorted(data.get("priors", {}).items()):
         if not isinstance(spec, str):
@@ -257,11 +299,4 @@ def scene_from_dict(data: dict) -> Scene:
                 f"got {spec!r}"
             )
         priors.append((name, spec))
-    return Scene(
-        particle=particle,
-        contact=contact,
-        model=model,
-        impact=impact,
-        solver=solver,
-        priors=tuple(priors),
-    )
+    return tuple(priors)

@@ -43,11 +43,25 @@ def scene_report(scene_arg=None) -> str:
     """The text ``jaximpact show [SCENE]`` prints."""
     scene = load_scene(scene_arg)
     raw = _raw(scene_arg).get("contact", {})
-    p, c, m, i, s = scene.particle, scene.contact, scene.model, scene.impact, scene.solver
+    p, c, m, i = scene.particle, scene.contact, scene.model, scene.impact
     r, rho, K = float(p.radius), float(p.density), float(c.K)
     mass = rho * 4.0 / 3.0 * math.pi * r**3
     lines = [f"scene: {describe_scene_source(scene_arg)}", ""]
+    lines += _particle_and_contact(scene, raw, r, rho, K, mass)
+    lines += _model_lines(m)
+    speed, angle, omega0 = float(i.speed), float(i.angle_deg), float(i.omega0)
+    lines += _impact_lines(speed, angle, omega0, r, K, mass)
+    params = scene_parameters(scene)
+    lines += _solver_lines(scene, params, speed, angle)
+    terms = required_terms(scene, params, angle, omega0)
+    lines += _terms_lines(terms, m)
+    return "\n".join(lines)
 
+
+def _particle_and_contact(scene, raw: dict, r, rho, K, mass) -> list[str]:
+    """The particle and contact sections, each derived value with its origin."""
+    c, m = scene.contact, scene.model
+    lines = []
     lines.append("particle")
     lines.append(f"  radius r            {_g(r)} m")
     lines.append(f"  density             {_g(rho)} kg/m^3")
@@ -80,6 +94,12 @@ def scene_report(scene_arg=None) -> str:
         why = "from E1, nu1, E2, nu2" if "E1" in raw and "G_star" not in raw else "given"
         lines.append(f"  G_star              {_g(c.G_star)} Pa  ({why}; tangential k_t = 8 G* a)")
 
+    return lines
+
+
+def _model_lines(m) -> list[str]:
+    """The model switches."""
+    lines = []
     lines.append("model")
     lines.append(f"  rotation            {m.rotation}")
     lines.append(f"  adhesion            {m.adhesion}")
@@ -89,7 +109,12 @@ def scene_report(scene_arg=None) -> str:
     lines.append(f"  friction_load       {m.friction_load}")
     lines.append(f"  tangential          {m.tangential}")
 
-    speed, angle, omega0 = float(i.speed), float(i.angle_deg), float(i.omega0)
+    return lines
+
+
+def _impact_lines(speed, angle, omega0, r, K, mass) -> list[str]:
+    """The scene's default impact and its Hertz scales."""
+    lines = []
     v_n = speed * math.cos(math.radians(angle))
     n_star = (5.0 * mass * v_n**2 / (4.0 * K * math.sqrt(r))) ** 0.4
     t_unit = n_star / v_n
@@ -103,7 +128,13 @@ def scene_report(scene_arg=None) -> str:
     lines.append(f"  contact radius      {_g(math.sqrt(r * n_star))} m  (at n*)")
     lines.append(f"  spin unit v_n/r     {_g(v_n / r)} rad/s")
 
-    params = scene_parameters(scene)
+    return lines
+
+
+def _solver_lines(scene, params, speed, angle) -> list[str]:
+    """The solver settings resolved for the default impact (``method = "auto"`` explained)."""
+    s = scene.solver
+    lines = []
     dtype = jnp.result_type(float)
     chosen = integration_settings(scene, params, np.array(speed), np.array(angle), dtype)
     stiff = float(stiffness_estimate(params, speed, angle))
@@ -126,7 +157,12 @@ def scene_report(scene_arg=None) -> str:
     lines.append(f"  slip_width          {default_slip_width(dtype, s.slip_width, s.rtol):g}")
     lines.append(f"  outputs             {s.outputs}")
 
-    terms = required_terms(scene, params, angle, omega0)
+    return lines
+
+
+def _terms_lines(terms, m) -> list[str]:
+    """The terms the default impact compiles, and those it leaves out and why."""
+    lines = []
     used, left = [], []
     used.append("normal: Hertz force, Hertz damping")
     if terms.adhesion:
@@ -167,4 +203,4 @@ def scene_report(scene_arg=None) -> str:
         "(a batch compiles the union of what its impacts need; zero values of f0, lambda or "
         "C_A and C_H leave their terms out only when known before tracing)"
     )
-    return "\n".join(lines)
+    return lines

@@ -54,7 +54,50 @@ def simulate_impact(
     th = math.radians(angle_deg)
     v_n, v_t = speed * math.cos(th), speed * math.sin(th)
     w0 = float(omega0) if p.rotation else 0.0
+    S, L, T, atol_vec = _rigid_scales(model, p, speed, v_n, v_t, w0, atol)
+    if t_max is None:
+        t_max = 1000.0 * T
 
+    n_eps = _N_EPS * L
+    t = n_eps / v_n
+    y = np.array([n_eps, v_n, v_t - r * w0 if p.rotation else v_t, w0, 0, 0, 0, 0], dtype=float)
+    energy_in = 0.5 * m * speed**2 + 0.5 * m * model.k2 * w0**2
+    mode, roll_time = _initial_mode(model, y)
+
+    run = _RigidRun(model, S, L, T, rtol, atol_vec, method, history, detect_capture, n_eps)
+    y, t = run.integrate(y, t, t_max, mode, roll_time, max_segments)
+
+    contact_time = t
+    if run.status == "rebound" and y[1] < 0:
+        contact_time += y[0] / -y[1]  # the last n_eps, crossed at constant speed
+    hist = None
+    if history:
+        hist = _build_history(model, run.segments, S, T, v_n, y, t, contact_time, n_samples)
+    return ImpactResult(
+        status=run.status,
+        vn_out=float(-y[1]),
+        vt_out=float(model.tdot(y)),
+        omega_out=float(y[3]),
+        contact_time=float(contact_time),
+        roll_time=float(run.roll_time),
+        max_overlap=float(run.max_overlap),
+        energy_in=float(energy_in),
+        energy_out=float(model.mechanical_energy(y)),
+        loss_hertz_damping=float(y[4]),
+        loss_adhesion_damping=float(y[5]),
+        loss_friction=float(y[6]),
+        loss_rolling=float(y[7]),
+        n_out=float(y[0]) if run.status != "rebound" else 0.0,
+        n_segments=run.n_seg,
+        message=run.message,
+        history=hist,
+    )
+
+
+def _rigid_scales(model, p: Params, speed, v_n, v_t, w0, atol):
+    """The state's scales ``S``, the overlap and time scales ``L`` and ``T``, and the absolute
+    tolerances."""
+    m, r = model.m, model.r
     # Scales: overlap L (Hertz peak, or the adhesive equilibrium 2 pi f0 / K if larger), time T
     # (stiffness at overlap L), velocities V = L/T.
     n_star, _ = hertz_scales(p, v_n)
@@ -67,14 +110,11 @@ def simulate_impact(
     # The slip's sign decides the friction direction: resolve it far below the other errors.
     atol_vec = np.full(8, atol)
     atol_vec[2] = atol * 1e-6
-    if t_max is None:
-        t_max = 1000.0 * T
+    return S, L, T, atol_vec
 
-    n_eps = _N_EPS * L
-    t = n_eps / v_n
-    y = np.array([n_eps, v_n, v_t - r * w0 if p.rotation else v_t, w0, 0, 0, 0, 0], dtype=float)
-    energy_in = 0.5 * m * speed**2 + 0.5 * m * model.k2 * w0**2
 
+def _initial_mode(model, y) -> tuple[int, float]:
+    """The tangential mode at first touch, and the rolling time if it rolls from the start."""
     slip0 = model.slip(y)
     if model.f == 0:
         mode = _FREE
@@ -83,36 +123,85 @@ def simulate_impact(
     else:
         mode = 1 if slip0 > 0 else -1
     roll_time = 0.0 if (mode == _ROLL and slip0 == 0) else math.nan
+    return mode, roll_time
 
-    base_events = [(lambda y: y[0] - n_eps, True, -1, "rebound")]
-    if detect_capture:
-        base_events.append((model.normal_energy, True, -1, "captured"))
-    base_events.append((lambda y: y[1], False, -1, "turn"))  # max overlap at ndot = 0
-    kinks = model.kink_functions()
-    h_look = _LOOKAHEAD * T
 
-    status, message = "failed", ""
-    max_overlap = n_eps
-    segments = []  # (t0, t1, OdeSolution or None, mode, ts, ys) for the history
-    stalls = 0
-    n_seg = 0
-    while True:
-        if n_seg >= max_segments:
-            message = "too many segments"
-            break
-        n_seg += 1
+class _RigidRun:
+    """The segment loop of the rigid-friction model: integrate until an event, switch the
+    tangential mode, restart; ends in a rebound, a capture or a failure."""
+
+    def __init__(self, model, S, L, T, rtol, atol_vec, method, history, detect_capture, n_eps):
+        self.model, self.S, self.L, self.T = model, S, L, T
+        self.rtol, self.atol_vec, self.method, self.history = rtol, atol_vec, method, history
+        self.base_events = [(lambda y: y[0] - n_eps, True, -1, "rebound")]
+        if detect_capture:
+            self.base_events.append((model.normal_energy, True, -1, "captured"))
+        self.base_events.append((lambda y: y[1], False, -1, "turn"))  # max overlap at ndot = 0
+        self.kinks = model.kink_functions()
+        self.h_look = _LOOKAHEAD * T
+        self.status, self.message = "failed", ""
+        self.max_overlap = n_eps
+        self.segments = []  # (t0, t1, OdeSolution or None, mode, ts, ys) for the history
+        self.n_seg = 0
+
+    def integrate(self, y, t, t_max, mode, roll_time, max_segments):
+        """Segments from ``(t, y)`` in ``mode`` until the impact ends; its final state."""
+        model, h_look = self.model, self.h_look
+        self.roll_time = roll_time
+        stalls = 0
+        while True:
+            if self.n_seg >= max_segments:
+                self.message = "too many segments"
+                break
+            self.n_seg += 1
+            specs, sol, t_new, y_new = self.segment(y, t, t_max, mode)
+            stalls, self.message = _segment_end(sol, y_new, t_new - t, self.T, stalls)
+            y, t = y_new, t_new
+            if self.message:
+                break
+            fired = _fired_events(specs, sol)
+            if "rebound" in fired:
+                self.status = "rebound"
+                break
+            if "captured" in fired:
+                self.status = "captured"
+                break
+            mode_events = [k for k in fired if isinstance(k, tuple)]
+            if mode in (1, -1) and mode * y[2] <= 0 and not mode_events:
+                # the slip reached zero together with a kink: same as the slip event
+                mode_events = [("mode", None)]
+            if mode_events:
+                y = model.project_to_rolling(y)
+                nxt = mode_events[0][1]
+                if nxt is None:  # the slip reached zero
+                    if math.isnan(self.roll_time):
+                        self.roll_time = t
+                    mode = model.decide(y, h_look)
+                else:  # rolling can no longer be held: slide against the imbalance
+                    mode = nxt
+            elif mode == _ROLL:
+                # A restart at a kink (F_n = 0 above all, where the load vanishes): check again
+                # that friction can still hold the rolling.
+                y = model.project_to_rolling(y)
+                mode = model.decide(y, h_look)
+        return y, t
+
+    def segment(self, y, t, t_max, mode):
+        """One segment in ``mode`` up to its first terminal event: its event specs, the
+        solution, and the end time and state."""
+        model, S, T = self.model, self.S, self.T
         # A kink event must fire only when leaving the side the state is on (or moving into,
         # when it sits on the kink after a restart), else it would fire at once again.
-        y_look = y + h_look * np.array(model.rhs(y, mode))
+        y_look = y + self.h_look * np.array(model.rhs(y, mode))
 
         def side(g, y=y, y_look=y_look):
             g1 = g(y_look)
             return 1.0 if (g1 if g1 != 0 else g(y)) >= 0 else -1.0
 
-        specs = list(base_events)
+        specs = list(self.base_events)
         for g, nxt in model.mode_functions(mode, side(model.normal_force)):
             specs.append((g, True, -1, ("mode", nxt)))
-        for g in kinks:
+        for g in self.kinks:
             specs.append((g, True, -side(g), "kink"))
         events = [_make_event(g, S, term, d) for g, term, d, _ in specs]
 
@@ -125,76 +214,22 @@ def simulate_impact(
             fun,
             (t / T, t_max / T),
             y / S,
-            method=method,
-            rtol=rtol,
-            atol=atol_vec,
+            method=self.method,
+            rtol=self.rtol,
+            atol=self.atol_vec,
             events=events,
-            dense_output=history,
+            dense_output=self.history,
         )
         ys = sol.y * S[:, None]
-        max_overlap = max(max_overlap, float(np.max(ys[0])))
+        self.max_overlap = max(self.max_overlap, float(np.max(ys[0])))
         for (_, _, _, kind), ye in zip(specs, sol.y_events, strict=True):
             if kind == "turn" and len(ye):
-                max_overlap = max(max_overlap, float(np.max(ye[:, 0])) * L)
+                self.max_overlap = max(self.max_overlap, float(np.max(ye[:, 0])) * self.L)
         t_new = float(sol.t[-1]) * T
         y_new = ys[:, -1].copy()
-        if history:
-            segments.append((t, t_new, sol.sol, mode, sol.t * T, ys))
-        stalls, message = _segment_end(sol, y_new, t_new - t, T, stalls)
-        y, t = y_new, t_new
-        if message:
-            break
-        fired = _fired_events(specs, sol)
-        if "rebound" in fired:
-            status = "rebound"
-            break
-        if "captured" in fired:
-            status = "captured"
-            break
-        mode_events = [k for k in fired if isinstance(k, tuple)]
-        if mode in (1, -1) and mode * y[2] <= 0 and not mode_events:
-            # the slip reached zero together with a kink: same as the slip event
-            mode_events = [("mode", None)]
-        if mode_events:
-            y = model.project_to_rolling(y)
-            nxt = mode_events[0][1]
-            if nxt is None:  # the slip reached zero
-                if math.isnan(roll_time):
-                    roll_time = t
-                mode = model.decide(y, h_look)
-            else:  # rolling can no longer be held: slide against the imbalance
-                mode = nxt
-        elif mode == _ROLL:
-            # A restart at a kink (F_n = 0 above all, where the load vanishes): check again
-            # that friction can still hold the rolling.
-            y = model.project_to_rolling(y)
-            mode = model.decide(y, h_look)
-
-    contact_time = t
-    if status == "rebound" and y[1] < 0:
-        contact_time += y[0] / -y[1]  # the last n_eps, crossed at constant speed
-    hist = None
-    if history:
-        hist = _build_history(model, segments, S, T, v_n, y, t, contact_time, n_samples)
-    return ImpactResult(
-        status=status,
-        vn_out=float(-y[1]),
-        vt_out=float(model.tdot(y)),
-        omega_out=float(y[3]),
-        contact_time=float(contact_time),
-        roll_time=float(roll_time),
-        max_overlap=float(max_overlap),
-        energy_in=float(energy_in),
-        energy_out=float(model.mechanical_energy(y)),
-        loss_hertz_damping=float(y[4]),
-        loss_adhesion_damping=float(y[5]),
-        loss_friction=float(y[6]),
-        loss_rolling=float(y[7]),
-        n_out=float(y[0]) if status != "rebound" else 0.0,
-        n_segments=n_seg,
-        message=message,
-        history=hist,
-    )
+        if self.history:
+            self.segments.append((t, t_new, sol.sol, mode, sol.t * T, ys))
+        return specs, sol, t_new, y_new
 
 
 def impact_history(

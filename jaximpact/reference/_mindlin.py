@@ -135,32 +135,98 @@ def _simulate_mindlin(
     t = n_eps / v_n
     y = np.array([n_eps, v_n, v_t, w0, 0.0, 0.0, 0.0, 0.0, 0.0])
     energy_in = 0.5 * m * speed**2 + 0.5 * m * model.k2 * w0**2
-    mode = _STICK
     roll_time = 0.0 if model.slip(y) == 0 else math.nan
 
-    base = [(lambda y: y[0] - n_eps, True, -1, "rebound")]
-    if detect_capture and p.adhesion:
-        base.append((model.normal_energy, True, -1, "captured"))
-    base.append((lambda y: y[1], False, -1, "turn"))
-    base.append((model.slip, False, 0, "zero_slip"))
-    kinks = model.rigid.kink_functions()
-    h_look = _LOOKAHEAD * T
-    status, message, max_overlap, stalls, n_seg = "failed", "", n_eps, 0, 0
-    while True:
-        if n_seg >= max_segments:
-            message = "too many segments"
-            break
-        n_seg += 1
-        y_look = y + h_look * np.array(model.rhs(y, mode))
+    run = _MindlinRun(model, S, L, T, rtol, atol, method, detect_capture and p.adhesion, n_eps)
+    y, t, mode = run.integrate(y, t, t_max, roll_time, max_segments)
+
+    y[4] = model.xi(y, mode)
+    contact_time = t
+    if run.status == "rebound" and y[1] < 0:
+        contact_time += y[0] / -y[1]
+    spring = model.spring_energy(y, _STICK)
+    return ImpactResult(
+        status=run.status,
+        vn_out=float(-y[1]),
+        vt_out=float(y[2]),
+        omega_out=float(y[3]),
+        contact_time=float(contact_time),
+        roll_time=float(run.roll_time),
+        max_overlap=float(run.max_overlap),
+        energy_in=float(energy_in),
+        energy_out=float(model.mechanical_energy(y, _STICK)),
+        loss_hertz_damping=float(y[6]),
+        loss_adhesion_damping=float(y[7]),
+        loss_friction=float(-y[5] - spring),
+        loss_rolling=float(y[8]),
+        n_out=float(y[0]) if run.status != "rebound" else 0.0,
+        n_segments=run.n_seg,
+        message=run.message,
+    )
+
+
+class _MindlinRun:
+    """The segment loop of the Mindlin model: stick and slip phases of the tangential spring,
+    until a rebound, a capture or a failure."""
+
+    def __init__(self, model, S, L, T, rtol, atol, method, detect_capture, n_eps):
+        self.model, self.S, self.L, self.T = model, S, L, T
+        self.rtol, self.atol, self.method = rtol, atol, method
+        self.base = [(lambda y: y[0] - n_eps, True, -1, "rebound")]
+        if detect_capture:
+            self.base.append((model.normal_energy, True, -1, "captured"))
+        self.base.append((lambda y: y[1], False, -1, "turn"))
+        self.base.append((model.slip, False, 0, "zero_slip"))
+        self.kinks = model.rigid.kink_functions()
+        self.h_look = _LOOKAHEAD * T
+        self.status, self.message, self.max_overlap, self.n_seg = "failed", "", n_eps, 0
+
+    def integrate(self, y, t, t_max, roll_time, max_segments):
+        """Segments from ``(t, y)``, sticking first, until the impact ends; its final state,
+        time and mode."""
+        model = self.model
+        self.roll_time = roll_time
+        mode = _STICK
+        stalls = 0
+        while True:
+            if self.n_seg >= max_segments:
+                self.message = "too many segments"
+                break
+            self.n_seg += 1
+            specs, sol, t_new, y_new = self.segment(y, t, t_max, mode)
+            stalls, self.message = _segment_end(sol, y_new, t_new - t, self.T, stalls)
+            y, t = y_new, t_new
+            if self.message:
+                break
+            fired = _fired_events(specs, sol)
+            if "rebound" in fired:
+                self.status = "rebound"
+                break
+            if "captured" in fired:
+                self.status = "captured"
+                break
+            switches = [k[1] for k in fired if isinstance(k, tuple)]
+            if switches:
+                y[4] = model.xi(y, mode)  # slip -> stick: xi stays where the cap left it
+                mode = switches[0]
+                if mode != _STICK:
+                    y[4] = model.xi(y, mode)
+        return y, t, mode
+
+    def segment(self, y, t, t_max, mode):
+        """One segment in ``mode`` up to its first terminal event: its event specs, the
+        solution, and the end time and state."""
+        model, S, T = self.model, self.S, self.T
+        y_look = y + self.h_look * np.array(model.rhs(y, mode))
 
         def side(g, y=y, y_look=y_look):
             g1 = g(y_look)
             return 1.0 if (g1 if g1 != 0 else g(y)) >= 0 else -1.0
 
-        specs = list(base)
+        specs = list(self.base)
         for g, nxt in model.mode_functions(mode):
             specs.append((g, True, -1, ("mode", nxt)))
-        for g in kinks:
+        for g in self.kinks:
             specs.append((g, True, -side(g), "kink"))
         events = [_make_event(g, S, term, d) for g, term, d, _ in specs]
 
@@ -168,54 +234,15 @@ def _simulate_mindlin(
             return np.array(model.rhs(z * S, seg_mode)) * T / S
 
         sol = solve_ivp(
-            fun, (t / T, t_max / T), y / S, method=method, rtol=rtol, atol=atol, events=events
-        )
+            fun, (t / T, t_max / T), y / S, method=self.method, rtol=self.rtol, atol=self.atol,
+            events=events,
+        )  # fmt: skip
         ys = sol.y * S[:, None]
-        max_overlap = max(max_overlap, float(np.max(ys[0])))
+        self.max_overlap = max(self.max_overlap, float(np.max(ys[0])))
         for (_, _, _, kind), te, ye in zip(specs, sol.t_events, sol.y_events, strict=True):
             if kind == "turn" and len(ye):
-                max_overlap = max(max_overlap, float(np.max(ye[:, 0])) * L)
-            if kind == "zero_slip" and len(te) and math.isnan(roll_time):
-                roll_time = float(te[0]) * T
+                self.max_overlap = max(self.max_overlap, float(np.max(ye[:, 0])) * self.L)
+            if kind == "zero_slip" and len(te) and math.isnan(self.roll_time):
+                self.roll_time = float(te[0]) * T
         t_new, y_new = float(sol.t[-1]) * T, ys[:, -1].copy()
-        stalls, message = _segment_end(sol, y_new, t_new - t, T, stalls)
-        y, t = y_new, t_new
-        if message:
-            break
-        fired = _fired_events(specs, sol)
-        if "rebound" in fired:
-            status = "rebound"
-            break
-        if "captured" in fired:
-            status = "captured"
-            break
-        switches = [k[1] for k in fired if isinstance(k, tuple)]
-        if switches:
-            y[4] = model.xi(y, mode)  # slip -> stick: xi stays where the cap left it
-            mode = switches[0]
-            if mode != _STICK:
-                y[4] = model.xi(y, mode)
-
-    y[4] = model.xi(y, mode)
-    contact_time = t
-    if status == "rebound" and y[1] < 0:
-        contact_time += y[0] / -y[1]
-    spring = model.spring_energy(y, _STICK)
-    return ImpactResult(
-        status=status,
-        vn_out=float(-y[1]),
-        vt_out=float(y[2]),
-        omega_out=float(y[3]),
-        contact_time=float(contact_time),
-        roll_time=float(roll_time),
-        max_overlap=float(max_overlap),
-        energy_in=float(energy_in),
-        energy_out=float(model.mechanical_energy(y, _STICK)),
-        loss_hertz_damping=float(y[6]),
-        loss_adhesion_damping=float(y[7]),
-        loss_friction=float(-y[5] - spring),
-        loss_rolling=float(y[8]),
-        n_out=float(y[0]) if status != "rebound" else 0.0,
-        n_segments=n_seg,
-        message=message,
-    )
+        return specs, sol, t_new, y_new

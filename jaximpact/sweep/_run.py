@@ -126,21 +126,12 @@ def run_sweep(
     """
     import jax
     import jax.numpy as jnp
-    from tqdm import tqdm
 
     from .. import load_scene
 
     t_start = time.perf_counter()
     devices = jax.local_devices()
-    if chunk_size < 1 or chunk_size % len(devices):
-        raise SweepError(
-            f"--chunk-size {chunk_size} must be a positive multiple of the number of local "
-            f"devices ({len(devices)}: {', '.join(str(d) for d in devices)})"
-        )
-    index = jax.process_index() if process_index is None else process_index
-    count = jax.process_count() if process_count is None else process_count
-    if not 0 <= index < count:
-        raise SweepError(f"process index {index} is not in [0, {count})")
+    index, count = _process_share(chunk_size, devices, process_index, process_count)
     dtype = jnp.result_type(float)
     scene = load_scene(scene_path)
     settings, digest = _settings(scene_path, source, chunk_size, dtype)
@@ -150,41 +141,10 @@ def run_sweep(
     _prepare_output(directory)  # before any computing: every file problem first
     mine = [c for c in range(n_chunks) if c % count == index]
     if restart:
-        # Each process deletes only what it will rewrite, so concurrent processes of a
-        # distributed restart never delete each other's new files; process 0 also deletes what
-        # no process of this run owns (parts past the end, manifests of a larger old run).
-        own = {_part_name(c) for c in mine}
-        own |= {_manifest_name(index), _legacy_manifest_name(index)}
-
-        def keep(name: str) -> bool:
-            if name in own:
-                return False
-            if index != 0:
-                return True
-            part, manifest = _PART.match(name), _MANIFEST.match(name)
-            if part:
-                return int(part.group(1)) < n_chunks
-            if manifest:
-                return int(manifest.group(1)) < count
-            return True  # others' temporaries may be in flight
-
-        _clear(directory, keep)
+        _clear_for_restart(directory, mine, index, count, n_chunks)
         manifests = {}
     else:
-        manifests = _load_manifests(directory)
-        for _, m in manifests.values():
-            if m.get("settings_hash") != digest:
-                differences = _setting_differences(m.get("settings") or {}, settings)
-                raise SweepError(
-                    f"{directory}: a sweep made with other settings: {'; '.join(differences)}. "
-                    "Use --restart to discard its results, or another -o"
-                )
-        # Old-style manifest names (before "_manifest-"): this process renames its own (process
-        # 0 also those no process of this run owns), so Parquet readers skip them from now on.
-        for p, (file, m) in list(manifests.items()):
-            if (p == index or (index == 0 and p >= count)) and file.name != _manifest_name(p):
-                os.replace(file, directory / _manifest_name(p))
-                manifests[p] = (directory / _manifest_name(p), m)
+        manifests = _continued_manifests(directory, settings, digest, index, count)
     result_columns = _result_columns(manifests)
     done = {int(c) for _, m in manifests.values() for c in m["completed"]}
     own_manifest = manifests[index][1] if index in manifests else {"completed": []}
@@ -194,81 +154,29 @@ def run_sweep(
 
     base, terms, cfg = _model_config(scene, source, chunk_size, dtype)
     fn, sharding = _runner(terms, cfg, devices)
-    kill_after = os.environ.get(_KILL_ENV)
-    kill_after = None if kill_after is None else int(kill_after)
+    manifest = {
+        "format": FORMAT,
+        "settings_hash": digest,
+        "settings": settings,
+        "process_index": index,
+        "process_count": count,
+        "result_columns": list(result_columns),
+    }
+    pipeline = _Pipeline(
+        source, base, chunk_size, dtype, fn, sharding, directory, manifest, result_columns,
+        own_completed, own_failures,
+    )  # fmt: skip
+    bar = _progress_bar(source, chunk_size, mine, todo, progress, directory, index, count)
+    pipeline.run(todo, bar)
+    return _summary(directory, source, chunk_size, n_chunks, mine, todo, pipeline, result_columns,
+                    t_start, len(devices))  # fmt: skip
 
-    def launch(chunk: int):
-        """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
-        rows, valid, args = _chunk_inputs(source, base, chunk, chunk_size, dtype)
-        return chunk, valid, rows, dispatcher.submit(_dispatch, fn, sharding, args)
 
-    def write(chunk: int, valid: int, table, counts: dict) -> None:
-        """In the writer thread: the part file, then the manifest that lists it."""
-        nonlocal failed, impacts_run
-        _atomic_write_table(directory / _part_name(chunk), table)
-        if kill_after is not None and len(own_completed) - skipped_own >= kill_after:
-            os.kill(os.getpid(), signal.SIGKILL)  # test hook: die before the manifest update
-        own_completed.append(chunk)
-        # Counted in memory (reasons are known even where the sweep's columns lack them), and
-        # stored with the completed list in one atomic write.
-        for reason, n in counts.items():
-            own_failures[reason] = own_failures.get(reason, 0) + n
-        manifest = {
-            "format": FORMAT,
-            "settings_hash": digest,
-            "settings": settings,
-            "process_index": index,
-            "process_count": count,
-            "result_columns": list(result_columns),
-            "completed": sorted(own_completed),
-            "failures": dict(sorted(own_failures.items())),
-        }
-        atomic_write_text(directory / _manifest_name(index), json.dumps(manifest, indent=1) + "\n")
-        failed += sum(counts.values())
-        impacts_run += valid
-        bar.update(valid)
-
-    def hand_over(chunk: int, valid: int, rows: dict, result) -> None:
-        """Wait for the chunk, convert it and give it to the writer."""
-        status, values = _fetch(result.result(), valid)
-        table = _chunk_table(rows, source.columns, status, values, digest, result_columns)
-        writer.submit(chunk, valid, table, _failure_counts(status))
-
-    skipped_own = len(own_completed)
-    total = sum(min(chunk_size, source.n - c * chunk_size) for c in mine)
-    bar = tqdm(
-        total=total,
-        initial=total - sum(min(chunk_size, source.n - c * chunk_size) for c in todo),
-        unit="impact",
-        unit_scale=True,
-        smoothing=0.1,
-        # No bar for a single chunk (it would jump from 0 to 100 %) nor for work under a second.
-        disable=not progress or len(todo) < 2,
-        delay=1.0,
-        desc=f"sweep {directory.name}" + (f" [process {index}/{count}]" if count > 1 else ""),
-    )
-    failed = impacts_run = 0
-    pending = None
-    writer = _Writer(write)
-    # JAX runs a program on one CPU device asynchronously, but the call of a program sharded
-    # over several CPU devices returns only when the chunk is done (measured): calls from a
-    # thread of their own keep this thread free to fetch and convert the chunk before.
-    dispatcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sweep-dispatch")
-    try:
-        # Dispatch chunk k+1 before waiting for chunk k: the devices always have the next chunk
-        # while the host fetches, converts and (in the writer thread) writes the last one.
-        for chunk in todo:
-            launched = launch(chunk)
-            if pending is not None:
-                hand_over(*pending)
-            pending = launched
-        if pending is not None:
-            hand_over(*pending)
-        writer.finish()
-    finally:
-        dispatcher.shutdown(wait=True, cancel_futures=True)
-        writer.close()
-        bar.close()
+def _summary(
+    directory, source, chunk_size, n_chunks, mine, todo, pipeline, result_columns, t_start,
+    devices,
+) -> SweepSummary:  # fmt: skip
+    """What this call computed, and what the sweep (all processes' manifests) holds now."""
     final = _load_manifests(directory)
     finished = {int(c) for _, m in final.values() for c in m["completed"]}
     failures: dict[str, int] = {}
@@ -282,12 +190,175 @@ def run_sweep(
         chunk_size=chunk_size,
         chunks_run=len(todo),
         chunks_skipped=len(mine) - len(todo),
-        impacts_run=impacts_run,
-        failed=failed,
+        impacts_run=pipeline.impacts_run,
+        failed=pipeline.failed,
         seconds=time.perf_counter() - t_start,
-        devices=len(devices),
+        devices=devices,
         complete=finished >= set(range(n_chunks)),
         impacts_done=sum(min(chunk_size, source.n - c * chunk_size) for c in finished),
         failures=failures,
         legacy_columns=result_columns != RESULT_COLUMNS,
     )
+
+
+def _process_share(chunk_size, devices, process_index, process_count) -> tuple[int, int]:
+    """This process's index and the process count, the chunk size checked against devices."""
+    import jax
+
+    if chunk_size < 1 or chunk_size % len(devices):
+        raise SweepError(
+            f"--chunk-size {chunk_size} must be a positive multiple of the number of local "
+            f"devices ({len(devices)}: {', '.join(str(d) for d in devices)})"
+        )
+    index = jax.process_index() if process_index is None else process_index
+    count = jax.process_count() if process_count is None else process_count
+    if not 0 <= index < count:
+        raise SweepError(f"process index {index} is not in [0, {count})")
+    return index, count
+
+
+def _clear_for_restart(directory: Path, mine, index: int, count: int, n_chunks: int) -> None:
+    """Delete the results a restart replaces.
+
+    Each process deletes only what it will rewrite, so concurrent processes of a distributed
+    restart never delete each other's new files; process 0 also deletes what no process of
+    this run owns (parts past the end, manifests of a larger old run)."""
+    own = {_part_name(c) for c in mine}
+    own |= {_manifest_name(index), _legacy_manifest_name(index)}
+
+    def keep(name: str) -> bool:
+        if name in own:
+            return False
+        if index != 0:
+            return True
+        part, manifest = _PART.match(name), _MANIFEST.match(name)
+        if part:
+            return int(part.group(1)) < n_chunks
+        if manifest:
+            return int(manifest.group(1)) < count
+        return True  # others' temporaries may be in flight
+
+    _clear(directory, keep)
+
+
+def _continued_manifests(directory: Path, settings, digest, index: int, count: int) -> dict:
+    """The manifests of the sweep being continued, refused if made with other settings."""
+    manifests = _load_manifests(directory)
+    for _, m in manifests.values():
+        if m.get("settings_hash") != digest:
+            differences = _setting_differences(m.get("settings") or {}, settings)
+            raise SweepError(
+                f"{directory}: a sweep made with other settings: {'; '.join(differences)}. "
+                "Use --restart to discard its results, or another -o"
+            )
+    # Old-style manifest names (before "_manifest-"): this process renames its own (process
+    # 0 also those no process of this run owns), so Parquet readers skip them from now on.
+    for p, (file, m) in list(manifests.items()):
+        if (p == index or (index == 0 and p >= count)) and file.name != _manifest_name(p):
+            os.replace(file, directory / _manifest_name(p))
+            manifests[p] = (directory / _manifest_name(p), m)
+    return manifests
+
+
+def _progress_bar(source, chunk_size, mine, todo, progress, directory, index, count):
+    """The tqdm bar of this process's impacts (those of chunks already done count as done)."""
+    from tqdm import tqdm
+
+    total = sum(min(chunk_size, source.n - c * chunk_size) for c in mine)
+    return tqdm(
+        total=total,
+        initial=total - sum(min(chunk_size, source.n - c * chunk_size) for c in todo),
+        unit="impact",
+        unit_scale=True,
+        smoothing=0.1,
+        # No bar for a single chunk (it would jump from 0 to 100 %) nor for work under a second.
+        disable=not progress or len(todo) < 2,
+        delay=1.0,
+        desc=f"sweep {directory.name}" + (f" [process {index}/{count}]" if count > 1 else ""),
+    )
+
+
+class _Pipeline:
+    """This process's chunks, each dispatched before the one before is fetched, converted and
+    handed to the writer thread, which writes its part file and then the manifest."""
+
+    def __init__(
+        self, source, base, chunk_size, dtype, fn, sharding, directory, manifest, result_columns,
+        own_completed, own_failures,
+    ):  # fmt: skip
+        self.source, self.base, self.chunk_size, self.dtype = source, base, chunk_size, dtype
+        self.fn, self.sharding, self.directory = fn, sharding, directory
+        self.manifest = manifest  # the fixed fields of this process's manifest
+        self.result_columns = result_columns
+        self.own_completed, self.own_failures = own_completed, own_failures
+        self.skipped_own = len(own_completed)
+        kill_after = os.environ.get(_KILL_ENV)
+        self.kill_after = None if kill_after is None else int(kill_after)
+        self.failed = self.impacts_run = 0
+        self.bar = None
+
+    def launch(self, chunk: int):
+        """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
+        rows, valid, args = _chunk_inputs(
+            self.source, self.base, chunk, self.chunk_size, self.dtype
+        )
+        return chunk, valid, rows, self.dispatcher.submit(_dispatch, self.fn, self.sharding, args)
+
+    def write(self, chunk: int, valid: int, table, counts: dict) -> None:
+        """In the writer thread: the part file, then the manifest that lists it."""
+        _atomic_write_table(self.directory / _part_name(chunk), table)
+        if self.kill_after is not None:
+            if len(self.own_completed) - self.skipped_own >= self.kill_after:
+                os.kill(os.getpid(), signal.SIGKILL)  # test hook: die before the manifest update
+        self.own_completed.append(chunk)
+        # Counted in memory (reasons are known even where the sweep's columns lack them), and
+        # stored with the completed list in one atomic write.
+        for reason, n in counts.items():
+            self.own_failures[reason] = self.own_failures.get(reason, 0) + n
+        manifest = {
+            **self.manifest,
+            "completed": sorted(self.own_completed),
+            "failures": dict(sorted(self.own_failures.items())),
+        }
+        index = manifest["process_index"]
+        atomic_write_text(
+            self.directory / _manifest_name(index), json.dumps(manifest, indent=1) + "\n"
+        )
+        self.failed += sum(counts.values())
+        self.impacts_run += valid
+        self.bar.update(valid)
+
+    def hand_over(self, chunk: int, valid: int, rows: dict, result) -> None:
+        """Wait for the chunk, convert it and give it to the writer."""
+        status, values = _fetch(result.result(), valid)
+        table = _chunk_table(
+            rows, self.source.columns, status, values, self.manifest["settings_hash"],
+            self.result_columns,
+        )  # fmt: skip
+        self.writer.submit(chunk, valid, table, _failure_counts(status))
+
+    def run(self, todo, bar) -> None:
+        """Compute and write the chunks ``todo``, in order."""
+        self.bar = bar
+        pending = None
+        self.writer = _Writer(self.write)
+        # JAX runs a program on one CPU device asynchronously, but the call of a program
+        # sharded over several CPU devices returns only when the chunk is done (measured):
+        # calls from a thread of their own keep this thread free to fetch and convert the
+        # chunk before.
+        self.dispatcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sweep-dispatch")
+        try:
+            # Dispatch chunk k+1 before waiting for chunk k: the devices always have the next
+            # chunk while the host fetches, converts and (in the writer thread) writes the last.
+            for chunk in todo:
+                launched = self.launch(chunk)
+                if pending is not None:
+                    self.hand_over(*pending)
+                pending = launched
+            if pending is not None:
+                self.hand_over(*pending)
+            self.writer.finish()
+        finally:
+            self.dispatcher.shutdown(wait=True, cancel_futures=True)
+            self.writer.close()
+            self.bar.close()
