@@ -236,17 +236,7 @@ def design(
         scale = np.where(obs.observable == o, s, scale)
     jacs, rebound, stable = _jacobians(program, names, theta, scale, perturbation, at_draws)
     n_cand = len(candidates)
-    # jacs: (draws or 1, n_cand * observables, p)
-    dropped_captured = np.flatnonzero(~rebound)
-    dropped_near = np.flatnonzero(rebound & ~stable)
-    usable = np.flatnonzero(
-        rebound & stable & np.all(np.isfinite(jacs.reshape(len(jacs), n_cand, -1)), axis=(0, 2))
-    )
-    if n > len(usable):
-        raise FitError(
-            f"n = {n} but only {len(usable)} usable candidates ({len(dropped_captured)} "
-            f"captured, {len(dropped_near)} near the capture threshold dropped)"
-        )
+    usable, dropped_captured, dropped_near = _usable(jacs, rebound, stable, n_cand, n)
     per = jacs.reshape(len(jacs), n_cand, len(observables), len(names))
     info = np.einsum("sckp,sckq->scpq", per, per)
     info[:, ~np.isin(np.arange(n_cand), usable)] = 0.0
@@ -265,18 +255,40 @@ def design(
         ridge=ridge_abs,
         sigma=scale.reshape(n_cand, len(observables)),
         draws=0 if at_draws is None else len(at_draws),
-        implausible=np.flatnonzero(
-            implausible(
-                get_parameter(scene, "radius"),
-                np.nan,
-                get_parameter(scene, "density"),
-                get_parameter(scene, "K"),
-                candidates.speed,
-                candidates.angle_deg,
-            )
-            != ""
-        ),
+        implausible=_implausible_candidates(scene, candidates),
     )
+
+
+def _implausible_candidates(scene, candidates) -> np.ndarray:
+    """Indices of the candidates flagged physically implausible (elastic Hertz estimate)."""
+    return np.flatnonzero(
+        implausible(
+            get_parameter(scene, "radius"),
+            np.nan,
+            get_parameter(scene, "density"),
+            get_parameter(scene, "K"),
+            candidates.speed,
+            candidates.angle_deg,
+        )
+        != ""
+    )
+
+
+def _usable(jacs, rebound, stable, n_cand: int, n: int) -> tuple:
+    """The usable candidates (rebound, away from the capture threshold, finite Jacobian), and
+    those dropped as captured or near the threshold; too few usable: ``FitError``."""
+    # jacs: (draws or 1, n_cand * observables, p)
+    dropped_captured = np.flatnonzero(~rebound)
+    dropped_near = np.flatnonzero(rebound & ~stable)
+    usable = np.flatnonzero(
+        rebound & stable & np.all(np.isfinite(jacs.reshape(len(jacs), n_cand, -1)), axis=(0, 2))
+    )
+    if n > len(usable):
+        raise FitError(
+            f"n = {n} but only {len(usable)} usable candidates ({len(dropped_captured)} "
+            f"captured, {len(dropped_near)} near the capture threshold dropped)"
+        )
+    return usable, dropped_captured, dropped_near
 
 
 def _check_options(observables, sigma, n, ridge, perturbation) -> tuple[tuple, dict]:

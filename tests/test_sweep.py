@@ -341,7 +341,7 @@ def test_changed_settings_are_refused_unless_restart(impacts, reference, tmp_pat
 
 
 def test_refusal_names_every_setting_that_differs():
-    from jaximpact.sweep import _setting_differences
+    from jaximpact.sweep._store import _setting_differences
 
     grid = {"grid": [["speed", ["1.0", "2.0"]]], "defaults": {"angle_deg": "0.0", "omega0": "0.0"}}
     old = {

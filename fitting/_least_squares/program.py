@@ -1,29 +1,6 @@
-"""The fit's one compiled program: residuals and their Jacobian at a batch of points.
-
-Every iteration of every start, and the uncertainty at the end, calls the same compiled
-program ``U -> (r, J, status)``:
-
-- ``U``: ``(starts, p)`` points in the solver variables ``u`` (see ``_transforms``);
-- ``r``: ``(starts, n_data)`` weighted residuals; ``J = dr/du``: ``(starts, n_data, p)``;
-- ``status``: ``(starts, n_impacts)`` the simulator's status of every distinct impact.
-
-The observed values and their scales are inputs too, so new measurements at the same impacts
-reuse the compiled program.
-
-The starts are a ``vmap`` over one start's computation, so they run as one batch of
-``starts * n_impacts`` impacts (a batch of adaptive solves costs about as much as its slowest
-lane, and on a CPU a wider batch vectorizes better; one call per iteration for all starts).
-
-Jacobian: forward mode by default (``jax.jacfwd`` through ``diffrax.ForwardMode``): ``p``
-tangents ride along the solve, against one reverse sweep per residual for ``jax.jacrev``;
-forward mode is the cheaper one whenever there are fewer parameters than residuals, which a
-least-squares fit needs anyway (measured: BENCHMARKS.md, "Gradient cost" and "Fit time").
-Reverse mode (``jacobian="rev"``) is kept for comparison.
-
-The program is compiled once per objective, batch size and mode: with the compilation cache on
-(``jaximpact.enable_compilation_cache``) a later process loads it, traced and compiled, from
-disk; within a process it is kept in memory (:data:`_MEMORY`, a few entries).
-"""
+"""The fit's one compiled program: residuals and their Jacobian at a batch of points,
+``U -> (r, J, status)``, compiled once per objective, batch size and mode
+(design notes: docs/fitting_program.md)."""
 
 from __future__ import annotations
 

@@ -1,27 +1,7 @@
 """The lean step loop: ``simulate``'s one engine for values and derivatives.
 
-``diffrax.diffeqsolve`` runs its step loop with machinery this simulator never uses in a batch:
-save buffers, dense-output buffers, a checkpointed while loop, a progress meter, the attempted
-step's dense output (the 7 stages) carried through every step for the event's root find. Under
-``vmap`` every piece of that state is selected, lane by lane, on every step (~500 ns per
-lane-step against ~40 ns for the vector field itself, BENCHMARKS.md "Throughput").
-
-:func:`diffeqsolve_lean` is the same integration with only what the hot case needs: an explicit
-adaptive Runge-Kutta solver (``LaneTsit5``), diffrax's step-size controller, one scalar event
-located by :func:`jaximpact._event.locate` (separation or capture), ``SaveAt(t1=True)``. It
-calls the same pieces in the same order as ``diffrax``'s loop (``solver.init``,
-``controller.init``, ``solver.step``, ``controller.adapt_step_size``, the event's sign test),
-so a lane's steps are diffrax's arithmetic; what it leaves out is only bookkeeping. Instead of
-carrying the dense output, it keeps the state and first stage before each step and, after the
-loop, repeats the step that triggered the event (the same bits) to build its interpolation.
-
-It is a plain ``lax.while_loop``; derivatives are forward tangents of the same loop, wrapped by
-``_simulate._differentiable`` (a ``custom_jvp``; ``jax.grad`` transposes it). Outputs, step
-counts and failure statuses equal ``diffeqsolve``'s bitwise in float64; in float32 the event
-locator (Newton in a bracket) and diffrax's bisection stop at different points inside the
-event tolerance (tests/test_throughput_paths.py). float32 batches run through
-:func:`solve_pool`, which refills finished lanes.
-"""
+The integration of ``diffrax.diffeqsolve`` with only what a batch of impacts needs (one
+plain ``lax.while_loop``, the same arithmetic); design notes in docs/engine.md."""
 
 import diffrax
 import equinox as eqx

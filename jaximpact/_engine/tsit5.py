@@ -1,32 +1,7 @@
 """Tsitouras' 5(4) Runge-Kutta pair whose every lane gives the same bits in any batch.
 
-``diffrax.Tsit5`` forms its stage sums and its dense output with ``jnp.tensordot`` over the
-stacked stages. Under ``vmap`` that becomes a matrix product whose summation order (and so its
-rounding) depends on the batch size, and an adaptive solve turns a one-ulp difference into a
-different sequence of accepted steps: outputs then moved by ~1e-6 and derivatives by up to a
-factor 6 with what else was in the batch (issue 10). Here every sum is written out term by
-term, in a fixed order, with elementwise operations only, so a lane's arithmetic is the same
-whatever the batch (checked in tests/test_derivatives.py: alone, batched, shuffled, sharded).
-
-Two forms of the same arithmetic (``LaneTsit5.stages``), each batch-independent, not bitwise
-equal to each other (XLA fuses them differently); measured in BENCHMARKS.md:
-
-- ``"per_state"`` (default): the sums run per state variable, on arrays of one value per
-  lane: no concatenations and slices between stages. Against the state flattened into one
-  array per stage (the form before issue 12): 1.9x the impacts per CPU-second at 20,000
-  lanes, 2.1x at 1,000, 1.8x at 100, and within 10 % on the fit's and the sampler's small
-  forward-mode batches. XLA's CPU code vectorizes these arrays along the lanes, and lanes
-  left over after the last full SIMD vector take a scalar path whose rounding can differ
-  (measured: one lane of 5 or 13 moved, none of any multiple of 4): ``simulate`` therefore
-  pads every batch to a multiple of :func:`lane_group` lanes per device and chunk.
-- ``"loop"``: the state flattened per stage, and the six stages in a ``lax.fori_loop``, so
-  the vector field is traced and compiled once instead of six times: half the compile time
-  (the 25-impact fit: tracing 6.5 -> 4.1 s, XLA 10.5 -> 4.9 s) for about 2x the time per
-  call. For one-off work that compiling dominates (``simulate(program="compact")``).
-
-The method is Tsit5 itself (same tableau, same embedded error estimate, same 4th-order dense
-output), so accuracy and step counts match ``diffrax.Tsit5``. Only ODE terms are supported.
-"""
+Every stage sum is written out term by term, elementwise, so a lane's arithmetic does not
+depend on the batch; the two forms of the sums and why: docs/engine.md."""
 
 from collections.abc import Callable
 from typing import ClassVar
@@ -52,7 +27,7 @@ STAGE_FORMS = ("per_state", "loop")
 
 def lane_group(dtype, stages="per_state") -> int:
     """Lanes per device and chunk are a multiple of this: in the ``per_state`` form a 512-bit
-    vector of ``dtype``, so every lane takes the vectorized path (module docstring); 1 in the
+    vector of ``dtype``, so every lane takes the vectorized path (docs/engine.md); 1 in the
     ``loop`` form."""
     return 64 // jnp.dtype(dtype).itemsize if stages == "per_state" else 1
 
@@ -112,9 +87,9 @@ class LaneTsit5Interpolation(diffrax.AbstractLocalInterpolation):
 
 
 class LaneTsit5(diffrax.AbstractAdaptiveSolver):
-    """``diffrax.Tsit5`` with batch-independent arithmetic (see the module docstring).
+    """``diffrax.Tsit5`` with batch-independent arithmetic (docs/engine.md).
 
-    ``stages``: ``"per_state"`` (default) or ``"loop"`` (see the module docstring).
+    ``stages``: ``"per_state"`` (default) or ``"loop"`` (docs/engine.md).
     """
 
     term_structure: ClassVar = diffrax.AbstractTerm
