@@ -596,9 +596,3 @@ class _quiet:
 
     def __exit__(self, *exc):
         return self._w.__exit__(*exc)
-
-
-def degrees_to_speeds(speed, angle_deg):
-    """``(vn, vt)`` of an impact of ``speed`` (m/s) at ``angle_deg`` from the normal."""
-    th = np.radians(angle_deg)
-    return speed * np.cos(th), speed * np.sin(th)
