@@ -18,6 +18,7 @@ def test_notebooks_present():
         "03_batched_exploration.ipynb",
         "04_accuracy_and_cost.ipynb",
         "05_uncertainty_and_design.ipynb",
+        "06_wall_law.ipynb",
     ]
 
 

@@ -264,14 +264,15 @@ def test_files_netcdf_parquet_and_code(law, tmp_path):
 
 
 def test_posterior_draws_give_capture_probability_and_spread(scene, tmp_path):
-    xr = pytest.importorskip("xarray")
+    az = pytest.importorskip("arviz")  # the format of fit --posterior --draws
     pytest.importorskip("h5netcdf")
     f0 = np.array([[300.0, 350.0, 360.0]])  # (chain, draw)
-    ds = xr.Dataset(
-        {"f0": (("chain", "draw"), f0), "sigma_cor_n": (("chain", "draw"), np.ones((1, 3)))}
+    data = az.from_dict(
+        posterior={"f0": f0, "noise_cor_n": np.ones((1, 3))},
+        sample_stats={"lp": np.zeros((1, 3))},
     )
     path = tmp_path / "draws.nc"
-    ds.to_netcdf(path, group="posterior", engine="h5netcdf")
+    data.to_netcdf(str(path))
     draws = read_draws(path)
     assert list(draws) == ["f0"]  # the noise factor is not a scene parameter
     law = wall_law(

@@ -21,9 +21,10 @@ Search
    rebound (the upper end of the lowest captured band that has a rebound right above it).
    Captured at every scanned speed below it and rebound at every one above: status
    ``threshold``. Any other pattern is ``multiple``: a rebound below it (a captured band
-   above rebounds at lower speeds) or a capture above it (capture again at high speed: with
-   large Hertz damping ``C_H v`` beyond about 1 the impact is overdamped and the sphere
-   sticks again); ``next_capture`` is then the lowest scanned speed above it that sticks.
+   above rebounds at lower speeds) or a capture above it (a band of rebounds between speeds
+   that stick); ``next_capture`` is then the lowest scanned speed above it that sticks. (On
+   the scenes tried, strong damping gave one threshold or a capture at every scanned speed,
+   ``all_captured``: Table 1 with ``C_H`` up to 2.5 s/m has one threshold, with 3 s/m none.)
 3. Root: secant steps on ``g`` through the two lowest rebound speeds of the bracket, kept inside
    it; a step that lands on a capture moves the captured end and the next step is taken just
    above it; bisection where the secant leaves the bracket. Converged when the bracket or the

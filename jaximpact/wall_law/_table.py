@@ -473,7 +473,7 @@ class _Context:
             i, k = (int(j[0]) for j in np.nonzero(captured))
             raise WallLawError(
                 f"{int(captured.sum())} impacts above the capture speed were captured "
-                f"(capture is not one threshold there: the sphere sticks again at high speed), "
+                f"(capture is not one threshold there: the sphere sticks again at a higher speed), "
                 f"e.g. speed ratio {x[k + first]:g} ({speed[i, k + first]:.4g} m/s), angle "
                 f"{a[i]:g} deg, spin {w[i]:g} rad/s; keep the largest speed ratio below it"
             )
@@ -596,9 +596,3 @@ class _quiet:
 
     def __exit__(self, *exc):
         return self._w.__exit__(*exc)
-
-
-def degrees_to_speeds(speed, angle_deg):
-    """``(vn, vt)`` of an impact of ``speed`` (m/s) at ``angle_deg`` from the normal."""
-    th = np.radians(angle_deg)
-    return speed * np.cos(th), speed * np.sin(th)
