@@ -82,6 +82,7 @@ def main(argv=None):
     ap.add_argument("--time", action="store_true")
     ap.add_argument("--coverage", type=int, default=0)
     ap.add_argument("--design", action="store_true")
+    ap.add_argument("--seeds", help="with --coverage: only these replications (comma list)")
     ap.add_argument("--warmup", type=int, default=300)
     ap.add_argument("--draws", type=int, default=1000)
     ap.add_argument("--cache", help="compilation cache (default: a new temporary directory)")
@@ -108,13 +109,16 @@ def main(argv=None):
         if args.coverage:
             hits = {n: 0 for n in NAMES}
             reps = []
-            for seed in range(1, args.coverage + 1):
+            seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else None
+            for seed in seeds or range(1, args.coverage + 1):
                 post, wall = run_once(folder, clean, seed, args.warmup, args.draws, False)
                 rep = {
                     "seed": seed,
                     "wall_s": wall,
                     "status": post.status,
                     "divergences": post.divergences,
+                    "sampler": post.sampler,
+                    "khat": post.khat,
                 }
                 for n in NAMES:
                     s = post.summary[n]

@@ -104,6 +104,20 @@ def test_independence_proposal_that_misses_is_diagnosed_and_auto_falls_back_to_h
     assert auto.sampler == "hmc" and auto.khat > 0.7
 
 
+def test_independence_proposal_is_replaced_when_the_pilot_misses(monkeypatch):
+    """A least-squares covariance 100 times too small (standard deviations 10x): the first
+    main proposal's Pareto k is above 0.7 (without re-placing it the run is refused); placed
+    again on its importance weights, wider, the sampler recovers the posterior by itself."""
+    residuals, A, y, mean, cov = _linear_problem()
+    monkeypatch.setattr(_posterior, "REFINEMENTS", 0)
+    once = _sample_toy(residuals, len(y), mean, cov * 1e-2, sampler="independence")
+    assert once.khat > 0.7 and not once.converged
+    monkeypatch.undo()
+    refined = _sample_toy(residuals, len(y), mean, cov * 1e-2, sampler="auto")
+    assert refined.sampler == "independence" and refined.khat <= 0.7
+    _check_gaussian_posterior(refined, mean, cov)
+
+
 def _check_gaussian_posterior(result, mean, cov):
     assert result.converged, result.message
     assert result.divergences == 0

@@ -68,6 +68,11 @@ PROPOSAL_NU = 7.0
 PROPOSAL_INFLATION = 1.15
 #: Points evaluated per compiled call of the independence sampler (times the impacts: lanes).
 BLOCK = 500
+#: Times the independence sampler may re-place its proposal (on the importance-weighted
+#: moments of its last batch, wider by REFINE_INFLATION) while the Pareto k is above MAX_KHAT,
+#: before it gives up (``auto``: HMC, which takes minutes).
+REFINEMENTS = 2
+REFINE_INFLATION = 1.3
 
 
 @dataclass
@@ -526,7 +531,8 @@ class _StudentT:
 
     def __init__(self, mean, cov, nu=PROPOSAL_NU):
         self.mean, self.nu = np.asarray(mean, float), float(nu)
-        self.chol = np.linalg.cholesky(np.asarray(cov, float))
+        self.cov = np.asarray(cov, float)
+        self.chol = np.linalg.cholesky(self.cov)
 
     def sample(self, rng, n):
         x = rng.standard_normal((n, len(self.mean)))
@@ -537,6 +543,19 @@ class _StudentT:
         d = len(self.mean)
         y = np.linalg.solve(self.chol, (np.asarray(Z) - self.mean).T).T
         return -0.5 * (self.nu + d) * np.log1p(np.sum(y * y, axis=1) / self.nu)
+
+
+def _weighted_t(points, log_w, fallback_cov, inflation):
+    """A t proposal on the importance-weighted mean and covariance of ``points`` (``fallback_cov``
+    where the weighted covariance is not positive definite), covariance inflated by
+    ``inflation**2``."""
+    w = _normalized(log_w)
+    mean = w @ points
+    dev = points - mean
+    moments = (w[:, None] * dev).T @ dev
+    if not np.all(np.isfinite(moments)) or np.any(np.linalg.eigvalsh(moments) <= 0):
+        moments = np.asarray(fallback_cov)
+    return _StudentT(mean, inflation**2 * (moments + 1e-12 * np.eye(len(mean))))
 
 
 def _evaluate(log_density, Z, block, progress_bar):
@@ -560,9 +579,13 @@ def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, 
        covariance (inflated by :data:`PROPOSAL_INFLATION`); their importance weights give the
        posterior's mean and covariance, and the main proposal is the t on those.
     2. Every chain proposes ``warmup + draws`` independent points from the main proposal: all
-       chains' proposals are evaluated as a few large batches (the lanes full), then each
-       chain accepts or rejects in turn (``min(1, w' / w)``, ``w = p / q``). A chain starts at
-       a pilot point drawn by its importance weight; its first ``warmup`` steps are dropped.
+       chains' proposals are evaluated as a few large batches (the lanes full). If their
+       importance weights' Pareto k is above :data:`MAX_KHAT` (a posterior further from
+       Gaussian than the pilot could see), the proposal is re-placed on those weights, wider,
+       and the batch drawn again, up to :data:`REFINEMENTS` times.
+    3. Each chain accepts or rejects in turn (``min(1, w' / w)``, ``w = p / q``). A chain
+       starts at a pilot point drawn by its importance weight; its first ``warmup`` steps are
+       dropped.
 
     Returns draws ``(C, D, d)``, log densities ``(C, D)``, acceptance ``(C, D)``, the Pareto
     shape ``k`` of the main proposal's importance weights (above 0.7 the proposal misses
@@ -580,22 +603,26 @@ def _run_independence(log_density, center, cov, *, chains, warmup, draws, seed, 
         pilot = _StudentT(center, PROPOSAL_INFLATION**2 * np.asarray(cov))
         Z0 = pilot.sample(rng, PILOT)
         lp0 = _evaluate(log_density, Z0, block, bar)
-        w0 = _normalized(lp0 - pilot.log_density(Z0))
-        mean = w0 @ Z0
-        dev = Z0 - mean
-        moments = (w0[:, None] * dev).T @ dev
-        if not np.all(np.isfinite(moments)) or np.any(np.linalg.eigvalsh(moments) <= 0):
-            moments = np.asarray(cov)
-        proposal = _StudentT(mean, PROPOSAL_INFLATION**2 * (moments + 1e-12 * np.eye(dim)))
-        picked = rng.choice(PILOT, size=chains, p=w0)
+        log_w0 = lp0 - pilot.log_density(Z0)
+        proposal = _weighted_t(Z0, log_w0, np.asarray(cov), PROPOSAL_INFLATION)
+        picked = rng.choice(PILOT, size=chains, p=_normalized(log_w0))
         starts, start_lp = Z0[picked], lp0[picked]
         t_pilot = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        Z = proposal.sample(rng, chains * (warmup + draws))
-        lp = _evaluate(log_density, Z, block, bar)
-        log_w = lp - proposal.log_density(Z)
-    khat = float(pareto_khat(jnp.asarray(np.exp(log_w - np.max(log_w))), tail="upper"))
+        n = chains * (warmup + draws)
+        for attempt in range(REFINEMENTS + 1):
+            Z = proposal.sample(rng, n)
+            lp = _evaluate(log_density, Z, block, bar)
+            log_w = lp - proposal.log_density(Z)
+            khat = float(pareto_khat(jnp.asarray(np.exp(log_w - np.max(log_w))), tail="upper"))
+            if khat <= MAX_KHAT or attempt == REFINEMENTS:
+                break
+            inflation = PROPOSAL_INFLATION * REFINE_INFLATION ** (attempt + 1)
+            proposal = _weighted_t(Z, log_w, proposal.cov, inflation)
+            total += n
+            bar.total = total
+            bar.refresh()
     Z, lp, log_w = (a.reshape(chains, warmup + draws, *a.shape[1:]) for a in (Z, lp, log_w))
     state = (starts, start_lp, start_lp - proposal.log_density(starts))
     positions = np.empty((chains, warmup + draws, dim))
