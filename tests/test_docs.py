@@ -71,3 +71,63 @@ def test_benchmarks_sections_named_in_the_docs_exist():
             if name not in headings:
                 missing.append(f"{path.relative_to(ROOT)}: {name!r}")
     assert not missing, "no such section in BENCHMARKS.md: " + ", ".join(missing)
+
+
+def _readme_scene_table():
+    """``{(section, key)}`` named in README's scene reference table."""
+    text = (ROOT / "README.md").read_text()
+    keys, section = set(), None
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if not line.startswith("|") or len(cells) < 3:
+            continue
+        if cells[0].startswith("`["):
+            section = cells[0].strip("`[]")
+        for group in re.findall(r"`([^`]+)`", cells[1]):
+            keys.update((section, key.strip()) for key in group.split(","))
+    return keys
+
+
+def test_readme_scene_table_names_every_scene_key():
+    """Every key a scene file accepts is in README's reference table (the table missed
+    ``[model] tangential``, ``[contact] G_star`` and ``[priors]``)."""
+    from jaximpact._scene_io import ALLOWED
+
+    documented = _readme_scene_table()
+    missing = [
+        f"[{section}] {key}"
+        for section, keys in ALLOWED.items()
+        if section != "priors"
+        for key in keys
+        if (section, key) not in documented
+    ]
+    assert not missing, missing
+    assert (
+        any(section == "priors" for section, _ in documented)
+        or "`[priors]`" in (ROOT / "README.md").read_text()
+    )
+
+
+def test_readme_states_the_code_defaults():
+    """README's defaults are the code's (it said ring_width 1e-6 where the code used 1e-8)."""
+    import jax.numpy as jnp
+
+    import jaximpact as ji
+    from jaximpact._solvers import default_slip_width, default_tolerances
+
+    def g(x):  # README's spelling of a small number: 3e-4, not 0.0003 or 3e-04
+        return f"{x:.0e}".replace("e-0", "e-")
+
+    text = (ROOT / "README.md").read_text()
+    row = next(line for line in text.splitlines() if "`slip_width`, `ring_width`" in line)
+    assert f"ring: {g(ji.Solver().ring_width)}" in row
+    assert f"slip: {g(default_slip_width(jnp.float64, None))} in float64" in row
+    assert f"{g(default_slip_width(jnp.float32, None))} in float32" in row
+    row = next(line for line in text.splitlines() if "| `rtol`, `atol` |" in line)
+    for dtype, name in ((jnp.float64, "float64"), (jnp.float32, "float32")):
+        rtol, atol = default_tolerances(dtype, None, None)
+        assert f"{g(rtol)}/{g(atol)} in {name}" in row
+    row = next(line for line in text.splitlines() if "`max_steps`, `dt`, `stiffness_limit`" in line)
+    s = ji.Solver()
+    assert f"({s.max_steps})" in row and f"({s.dt:g})" in row
+    assert f"({s.stiffness_limit:g})" in row
