@@ -91,7 +91,7 @@ def _readme_scene_table():
 def test_readme_scene_table_names_every_scene_key():
     """Every key a scene file accepts is in README's reference table (the table missed
     ``[model] tangential``, ``[contact] G_star`` and ``[priors]``)."""
-    from jaximpact._scene_io import ALLOWED
+    from jaximpact._io.scene_files import ALLOWED
 
     documented = _readme_scene_table()
     missing = [
@@ -113,7 +113,7 @@ def test_readme_states_the_code_defaults():
     import jax.numpy as jnp
 
     import jaximpact as ji
-    from jaximpact._solvers import default_slip_width, default_tolerances
+    from jaximpact._engine.solvers import default_slip_width, default_tolerances
 
     def g(x):  # README's spelling of a small number: 3e-4, not 0.0003 or 3e-04
         return f"{x:.0e}".replace("e-0", "e-")
