@@ -305,6 +305,27 @@ def wall_law(
 
     say = progress or (lambda message: None)
     start = time.perf_counter()
+    base, radius, angle, omega, x, adhesive = _grid_axes(
+        scene, radius, angle_deg, omega0, speed_ratio
+    )
+    ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
+    rows = ctx.angles(angle, batch=None)
+    if refine and angle.size >= 3:
+        rows, angle = _refined(ctx, rows, angle, refine_tol, say)
+    law = _assembled(scene, rows, radius, angle, omega, x, adhesive)
+    impacts = ctx.impacts
+    if draws is not None:
+        law.uncertainty = _uncertainty(simulate, scene, law, draws, max_draws, say)
+        impacts += law.uncertainty["draws"] * law.speed.size
+    law.seconds = time.perf_counter() - start
+    law.impacts = impacts
+    return law
+
+
+def _grid_axes(scene, radius, angle_deg, omega0, speed_ratio):
+    """The scene's scalar parameters and the checked axes of the table: ``(base, radius,
+    angle, omega, x, adhesive)``; ``x`` is the speed over the capture speed (node 1 first)
+    for an adhesive scene, the speed in m/s otherwise."""
     params = scene_parameters(scene)
     for k, v in params.items():
         if np.ndim(v) != 0:
@@ -343,24 +364,28 @@ def wall_law(
             lo_open=True,
             unit="m/s",
         )
-    R, W, X = radius.size, omega.size, x.size
-    ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
-    # pass 1 on the given angles; then, unless told otherwise, the angle intervals where
-    # linear interpolation would miss by more than `tol` (kinks: the onset of rolling) are
-    # split, in batches of pass 1's lane count (one compiled program)
-    rows = ctx.angles(angle, batch=None)
-    if refine and angle.size >= 3:
-        extra = _refinement(rows, angle, tol=refine_tol)
-        if extra.size:
-            say(f"refining: {extra.size} more angles where the table bends sharply")
-            more = ctx.angles(extra, batch=ctx.batch)
-            rows = {k: np.concatenate([rows[k], more[k]], axis=1) for k in rows}
-            angle = np.concatenate([angle, extra])
-            order = np.argsort(angle)
-            angle = angle[order]
-            rows = {k: v[:, order] for k, v in rows.items()}
-    A = angle.size
-    law = WallLaw(
+    return base, radius, angle, omega, x, adhesive
+
+
+def _refined(ctx, rows, angle, tol, say):
+    """Split the angle intervals where linear interpolation would miss by more than ``tol``
+    (kinks: the onset of rolling), in batches of pass 1's lane count (one compiled program);
+    the rows and angles merged and sorted by angle."""
+    extra = _refinement(rows, angle, tol=tol)
+    if not extra.size:
+        return rows, angle
+    say(f"refining: {extra.size} more angles where the table bends sharply")
+    more = ctx.angles(extra, batch=ctx.batch)
+    rows = {k: np.concatenate([rows[k], more[k]], axis=1) for k in rows}
+    angle = np.concatenate([angle, extra])
+    order = np.argsort(angle)
+    return {k: v[:, order] for k, v in rows.items()}, angle[order]
+
+
+def _assembled(scene, rows, radius, angle, omega, x, adhesive) -> WallLaw:
+    """The :class:`WallLaw` of the computed rows, reshaped to (radius, angle, spin[, speed])."""
+    R, A, W, X = radius.size, angle.size, omega.size, x.size
+    return WallLaw(
         radius=radius,
         angle_deg=angle,
         omega0=omega,
@@ -376,13 +401,6 @@ def wall_law(
         spin_ratio=rows["spin_ratio"].reshape(R, A, W, X),
         scene=scene_attributes(scene),
     )
-    impacts = ctx.impacts
-    if draws is not None:
-        law.uncertainty = _uncertainty(simulate, scene, law, draws, max_draws, say)
-        impacts += law.uncertainty["draws"] * law.speed.size
-    law.seconds = time.perf_counter() - start
-    law.impacts = impacts
-    return law
 
 
 class _Context:

@@ -62,7 +62,6 @@ def cmd_wall_law(args) -> int:
     from .._io.paths import FileProblem, prepare_output
     from .._io.scene_files import describe_scene_source
     from .._model.scene import SceneError
-    from ._check import compare_with_simulate, random_points
     from ._codegen import HEADER_NAME, write_code
     from ._io import read_draws, write_netcdf, write_parquet
     from ._table import WallLawError, wall_law
@@ -115,6 +114,19 @@ def cmd_wall_law(args) -> int:
     write_netcdf(directory / "wall_law.nc", law, scene_name)
     write_parquet(directory / "wall_law.parquet", law, scene_name)
     write_code(law, directory, scene_name)
+    _report(law, scene, scene_name, args.check)
+    for name in ("wall_law.nc", "wall_law.parquet", HEADER_NAME, "openfoam/", "fluent/"):
+        print(f"wrote {directory / name}")
+    print(f"done in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
+def _report(law, scene, scene_name, check) -> None:
+    """What the table holds (and, with ``--check N``, its errors against simulate)."""
+    import numpy as np
+
+    from ._check import compare_with_simulate, random_points
+
     R, A, W, X = law.shape
     print(f"scene: {scene_name}")
     print(
@@ -135,21 +147,17 @@ def cmd_wall_law(args) -> int:
         print("the scene has no adhesion: nothing sticks; the speed axis is in m/s")
     if law.uncertainty:
         print(f"uncertainty: {law.uncertainty['draws']} posterior draws")
-    if args.check:
-        pts = random_points(law, args.check, seed=0)
+    if check:
+        pts = random_points(law, check, seed=0)
         c = compare_with_simulate(law, scene, pts)
         agree = c["status_agree"] | c["near_capture"]
         err = c["error"]
         print(
-            f"check against simulate at {args.check} random points: statuses agree at "
+            f"check against simulate at {check} random points: statuses agree at "
             f"{int(agree.sum())} (outside 0.1 % of the capture speed); largest errors: "
             f"cor_n {np.nanmax(err['cor_n']):.2e}, cor_t {np.nanmax(err['cor_t']):.2e}, "
             f"omega_out r/speed {np.nanmax(err['spin_ratio']):.2e}"
         )
-    for name in ("wall_law.nc", "wall_law.parquet", HEADER_NAME, "openfoam/", "fluent/"):
-        print(f"wrote {directory / name}")
-    print(f"done in {time.perf_counter() - started:.1f} s")
-    return 0
 
 
 def add_wall_law_command(sub) -> None:
