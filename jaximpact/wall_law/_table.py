@@ -121,9 +121,9 @@ class WallLaw:
         mode interpolates the normal capture speed ``v_c cos(angle)``, which changes slowly
         with the angle (``v_c`` itself grows like ``1 / cos``), and divides by ``cos``."""
         if self.speed_axis != "capture_ratio":
-            return _multilinear3(self.reference_speed, idx, w)
+            return _multilinear(self.reference_speed, idx, w)
         cos_nodes = np.cos(np.radians(self.angle_deg))[None, :, None]
-        normal = _multilinear3(self.reference_speed * cos_nodes, idx, w)
+        normal = _multilinear(self.reference_speed * cos_nodes, idx, w)
         return normal / np.cos(np.radians(angle))
 
     def u_of(self, x):
@@ -170,7 +170,7 @@ class WallLaw:
         clamped |= c & ~captured
         out = {}
         for name in OUTPUTS:
-            out[name] = _multilinear4(getattr(self, name), (ir, ia, iw, ix), (wr, wa, ww, wx))
+            out[name] = _multilinear(getattr(self, name), (ir, ia, iw, ix), (wr, wa, ww, wx))
         captured &= valid
         clamped &= valid
         dead = captured | ~valid
@@ -197,26 +197,14 @@ def _cell(nodes, q):
     return i, w, lo_out | hi_out
 
 
-def _multilinear3(table, idx, w):
+def _multilinear(table, idx, w):
+    """Multilinear interpolation in the cell at ``idx`` (one index per axis) with weights ``w``
+    (corners in the order the generated C code sums them, so the two agree bit for bit)."""
     table = np.asarray(table)
+    d = len(idx)
     out = 0.0
-    for corner in range(8):
-        bits = [(corner >> k) & 1 for k in range(3)]
-        ii = tuple(
-            np.minimum(i + b, table.shape[k] - 1)
-            for k, (i, b) in enumerate(zip(idx, bits, strict=True))
-        )
-        weight = 1.0
-        for k, b in enumerate(bits):
-            weight = weight * (w[k] if b else 1.0 - w[k])
-        out = out + weight * table[ii]
-    return out
-
-
-def _multilinear4(table, idx, w):
-    out = 0.0
-    for corner in range(16):
-        bits = [(corner >> k) & 1 for k in range(4)]
+    for corner in range(2**d):
+        bits = [(corner >> k) & 1 for k in range(d)]
         ii = tuple(
             np.minimum(i + b, table.shape[k] - 1)
             for k, (i, b) in enumerate(zip(idx, bits, strict=True))
