@@ -317,7 +317,8 @@ def pipeline(work: Path, chunk: int, chunks: int, repeats: int, configs) -> list
             env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
         ).strip()
         cmd = [sys.executable, __file__, "--pipeline-worker", "--workdir", str(work)]
-        cmd += ["--precision", precision, "--chunk-size", str(chunk)]
+        size = chunk or (8192 if precision == "float64" else 32768)  # sweep's default_chunk_size
+        cmd += ["--precision", precision, "--chunk-size", str(size)]
         cmd += ["--pipeline-chunks", str(chunks), "--repeats", str(repeats)]
         run = subprocess.run(cmd, env=env, capture_output=True, text=True)
         if run.returncode:
@@ -408,7 +409,9 @@ def report_from_output(path: str, repeats: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--n", type=int, default=1_000_000)
-    parser.add_argument("--chunk-size", type=int, default=8192)
+    parser.add_argument(
+        "--chunk-size", type=int, default=None, help="default: the sweep's, by precision"
+    )
     parser.add_argument("--scaling-n", type=int, default=65536)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--skip-big", action="store_true")
@@ -449,7 +452,7 @@ def main() -> None:
         command = "python benchmarks/sweep_benchmark.py --pipeline"
         if args.pipeline_configs != PIPELINE_CONFIGS:
             command += f" --pipeline-configs {args.pipeline_configs}"
-        if args.chunk_size != 8192:
+        if args.chunk_size:
             command += f" --chunk-size {args.chunk_size}"
         if args.pipeline_chunks != 4:
             command += f" --pipeline-chunks {args.pipeline_chunks}"
@@ -467,6 +470,7 @@ def main() -> None:
         if not args.workdir:
             shutil.rmtree(work, ignore_errors=True)
         return
+    args.chunk_size = args.chunk_size or 8192  # float64 below
     print("### A sweep end to end, and over host devices\n")
     print(
         measured_line(

@@ -315,6 +315,19 @@ def test_cli_reports_bad_grid_with_status_2(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_default_chunk_size_by_precision_and_kept_when_continuing(impacts, reference, tmp_path):
+    from jaximpact.sweep import default_chunk_size
+
+    assert default_chunk_size(np.float64) == 8192
+    assert default_chunk_size(np.float32) == 32768
+    # a sweep begun with 64-impact chunks continues with them when no chunk size is given
+    out = tmp_path / "copy"
+    shutil.copytree(reference[0], out)
+    summary = run_sweep(read_impacts_file(impacts), out, progress=False)
+    assert (summary.chunk_size, summary.chunks_run, summary.chunks_skipped) == (CHUNK, 0, 3)
+    assert summary.complete
+
+
 def test_changed_settings_are_refused_unless_restart(impacts, reference, tmp_path):
     out = tmp_path / "copy"
     shutil.copytree(reference[0], out)

@@ -3,7 +3,9 @@
 The design and the on-disk layout: docs/sweeps.md."""
 
 from ._run import DEFAULT_CHUNK_SIZE as DEFAULT_CHUNK_SIZE
+from ._run import DEFAULT_CHUNK_SIZE_FLOAT32 as DEFAULT_CHUNK_SIZE_FLOAT32
 from ._run import SweepSummary as SweepSummary
+from ._run import default_chunk_size as default_chunk_size
 from ._run import run_sweep as run_sweep
 from ._sources import GRID_NAMES as GRID_NAMES
 from ._sources import GridSource as GridSource

@@ -42,6 +42,17 @@ from ._store import (
 from ._writer import _chunk_table, _Writer
 
 DEFAULT_CHUNK_SIZE = 8192
+# float32 computes a chunk ~7x faster: 8192 impacts left a single CPU device's lanes nothing to
+# refill with, and the sweep ran 0.60 of ``simulate``'s marginal rate there, 1.01 at 32,768
+# (BENCHMARKS.md, "Large sweeps").
+DEFAULT_CHUNK_SIZE_FLOAT32 = 32768
+
+
+def default_chunk_size(dtype) -> int:
+    """Impacts per chunk when none is given: 8192 in float64, 32,768 in float32."""
+    import numpy as np
+
+    return DEFAULT_CHUNK_SIZE if np.dtype(dtype).itemsize >= 8 else DEFAULT_CHUNK_SIZE_FLOAT32
 
 
 # Test hook only: after this many chunks are committed in one run, write the next part file and
@@ -91,7 +102,7 @@ def run_sweep(
     output,
     *,
     scene_path=None,
-    chunk_size: int = DEFAULT_CHUNK_SIZE,
+    chunk_size: int | None = None,
     restart: bool = False,
     progress: bool = True,
     process_index: int | None = None,
@@ -108,6 +119,7 @@ def run_sweep(
         scene_path: an embedded scene's name or a scene file; ``None``: the embedded Table 1
             scene.
         chunk_size: impacts per chunk; a multiple of the number of local JAX devices.
+            ``None``: the sweep's own when continuing one, else :func:`default_chunk_size`.
         restart: delete results made with other settings (or any results) and start over.
         progress: show a tqdm progress bar on stderr (impacts/s, ETA).
         process_index, process_count: this process's share (chunks ``i`` with
@@ -131,8 +143,10 @@ def run_sweep(
 
     t_start = time.perf_counter()
     devices = jax.local_devices()
-    index, count = _process_share(chunk_size, devices, process_index, process_count)
     dtype = jnp.result_type(float)
+    if chunk_size is None:
+        chunk_size = _existing_chunk_size(Path(output), restart) or default_chunk_size(dtype)
+    index, count = _process_share(chunk_size, devices, process_index, process_count)
     scene = load_scene(scene_path)
     settings, digest = _settings(scene_path, source, chunk_size, dtype)
     n_chunks = settings["n_chunks"]
@@ -239,6 +253,20 @@ def _clear_for_restart(directory: Path, mine, index: int, count: int, n_chunks: 
         return True  # others' temporaries may be in flight
 
     _clear(directory, keep)
+
+
+def _existing_chunk_size(directory: Path, restart: bool) -> int | None:
+    """The chunk size of the sweep in ``directory`` (``None``: none there, unreadable, or a
+    restart), so that continuing a sweep without ``chunk_size`` keeps its chunks."""
+    if restart or not directory.is_dir():
+        return None
+    try:
+        manifests = _load_manifests(directory)
+    except SweepError:
+        return None  # the run reports it
+    sizes = {(m.get("settings") or {}).get("chunk_size") for _, m in manifests.values()}
+    sizes = {x for x in sizes if isinstance(x, int) and x > 0}
+    return sizes.pop() if len(sizes) == 1 else None
 
 
 def _continued_manifests(directory: Path, settings, digest, index: int, count: int) -> dict:

@@ -131,7 +131,7 @@ def add_sweep_command(sub) -> None:
     """Register ``jaximpact sweep`` on the subcommand parsers ``sub``."""
     import os
 
-    from . import DEFAULT_CHUNK_SIZE
+    from . import DEFAULT_CHUNK_SIZE, DEFAULT_CHUNK_SIZE_FLOAT32
 
     env_int = lambda name: int(os.environ[name]) if os.environ.get(name) else None  # noqa: E731
     sw = sub.add_parser(
@@ -154,9 +154,10 @@ def add_sweep_command(sub) -> None:
     sw.add_argument(
         "--chunk-size",
         type=int,
-        default=DEFAULT_CHUNK_SIZE,
-        help=f"impacts per chunk, a multiple of the local device count "
-        f"(default {DEFAULT_CHUNK_SIZE}); memory grows with it",
+        default=None,
+        help=f"impacts per chunk, a multiple of the local device count (default: the sweep's "
+        f"own when continuing one, else {DEFAULT_CHUNK_SIZE} in float64 and "
+        f"{DEFAULT_CHUNK_SIZE_FLOAT32} in float32); memory grows with it",
     )
     sw.add_argument("--precision", choices=("float64", "float32"), default="float64")
     sw.add_argument("--restart", action="store_true", help="discard existing results in the output")
