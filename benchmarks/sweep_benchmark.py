@@ -317,7 +317,7 @@ def pipeline(work: Path, chunk: int, chunks: int, repeats: int, configs) -> list
             env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
         ).strip()
         cmd = [sys.executable, __file__, "--pipeline-worker", "--workdir", str(work)]
-        size = chunk or (8192 if precision == "float64" else 32768)  # sweep's default_chunk_size
+        size = chunk or (32768 if (precision, devices) == ("float32", 1) else 8192)  # the default
         cmd += ["--precision", precision, "--chunk-size", str(size)]
         cmd += ["--pipeline-chunks", str(chunks), "--repeats", str(repeats)]
         run = subprocess.run(cmd, env=env, capture_output=True, text=True)

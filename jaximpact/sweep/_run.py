@@ -42,17 +42,20 @@ from ._store import (
 from ._writer import _chunk_table, _Writer
 
 DEFAULT_CHUNK_SIZE = 8192
-# float32 computes a chunk ~7x faster: 8192 impacts left a single CPU device's lanes nothing to
-# refill with, and the sweep ran 0.60 of ``simulate``'s marginal rate there, 1.01 at 32,768
-# (BENCHMARKS.md, "Large sweeps").
+# float32 on a single device: a float32 chunk computes ~7x faster than a float64 one, and one
+# CPU device refills its 16,384 lanes as impacts finish only within a chunk: at 8192 the sweep
+# ran 0.60 of ``simulate``'s marginal rate, at 32,768 0.97-1.01. On two devices (4096 lanes
+# each) 8192 ran 1.18 and 32,768 0.86 (BENCHMARKS.md, "Large sweeps").
 DEFAULT_CHUNK_SIZE_FLOAT32 = 32768
 
 
-def default_chunk_size(dtype) -> int:
-    """Impacts per chunk when none is given: 8192 in float64, 32,768 in float32."""
+def default_chunk_size(dtype, devices: int = 1) -> int:
+    """Impacts per chunk when none is given: 8192, or 32,768 in float32 on a single device."""
     import numpy as np
 
-    return DEFAULT_CHUNK_SIZE if np.dtype(dtype).itemsize >= 8 else DEFAULT_CHUNK_SIZE_FLOAT32
+    if np.dtype(dtype).itemsize < 8 and devices == 1:
+        return DEFAULT_CHUNK_SIZE_FLOAT32
+    return DEFAULT_CHUNK_SIZE
 
 
 # Test hook only: after this many chunks are committed in one run, write the next part file and
@@ -119,7 +122,8 @@ def run_sweep(
         scene_path: an embedded scene's name or a scene file; ``None``: the embedded Table 1
             scene.
         chunk_size: impacts per chunk; a multiple of the number of local JAX devices.
-            ``None``: the sweep's own when continuing one, else :func:`default_chunk_size`.
+            ``None``: the sweep's own when continuing one, else :func:`default_chunk_size`
+            (8192; 32,768 in float32 on a single device).
         restart: delete results made with other settings (or any results) and start over.
         progress: show a tqdm progress bar on stderr (impacts/s, ETA).
         process_index, process_count: this process's share (chunks ``i`` with
@@ -145,7 +149,9 @@ def run_sweep(
     devices = jax.local_devices()
     dtype = jnp.result_type(float)
     if chunk_size is None:
-        chunk_size = _existing_chunk_size(Path(output), restart) or default_chunk_size(dtype)
+        chunk_size = _existing_chunk_size(Path(output), restart) or default_chunk_size(
+            dtype, len(devices)
+        )
     index, count = _process_share(chunk_size, devices, process_index, process_count)
     scene = load_scene(scene_path)
     settings, digest = _settings(scene_path, source, chunk_size, dtype)
