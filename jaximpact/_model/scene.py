@@ -287,7 +287,10 @@ class Solver(eqx.Module):
       angles and contact time (energy ledger, ``max_overlap`` and ``roll_time`` are NaN);
       about twice as fast, for sweeps and fits that need no ledger.
     - `stiffness_limit`: with ``method="auto"``, the estimated stiffness (fastest relaxation rate
-      times the Hertz time) above which the implicit solver is used.
+      times the Hertz time) above which the implicit solver is used. Tsit5 needs about that many
+      steps per impact (lambda = 5e-3 N m on the Table 1 sphere: estimate 1109, 1191 steps);
+      Kvaerno5 compiles for 20-40 s and costs about 10x per step, so 1000 (measured in
+      BENCHMARKS.md, "Stability catalogue").
     """
 
     method: str = eqx.field(static=True, default="auto")
@@ -297,7 +300,7 @@ class Solver(eqx.Module):
     slip_width: float | None = eqx.field(static=True, default=None)
     ring_width: float = eqx.field(static=True, default=1e-8)
     max_steps: int = eqx.field(static=True, default=4096)
-    stiffness_limit: float = eqx.field(static=True, default=200.0)
+    stiffness_limit: float = eqx.field(static=True, default=1000.0)
     outputs: str = eqx.field(static=True, default="full")
 
     def __check_init__(self):
