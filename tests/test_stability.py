@@ -91,9 +91,20 @@ def test_explicit_solver_forced_on_stiff_lambda(table1):
 
 @pytest.mark.slow  # compiles programs of its own: CI's second step
 def test_tiny_slip_width_picks_implicit_solver_and_agrees(table1):
-    # width 1e-8: Tsit5 at the float64 default (Kvaerno5 below 30 rtol = 3e-9), 710 steps
-    scene = table1.replace(solver={"slip_width": 1e-8})
+    # width 1e-9 < 30 rtol (3e-9 at the float64 default): "auto" integrates with Kvaerno5
+    scene = table1.replace(solver={"slip_width": 1e-9})
+    params = ji.scene_parameters(scene)
+    assert ji.integration_settings(scene, params, 1.66, 40.0, np.float64).method == "kvaerno5"
     check(scene, ref.table1_params(), 1.66, 40.0, W_PAPER)
+
+
+@pytest.mark.slow  # compiles programs of its own: CI's second step
+def test_strong_lambda_moment_picks_implicit_solver_and_agrees(table1):
+    # lambda = 1e-2 N m: stiffness estimate 2218 > solver.stiffness_limit (1000)
+    scene = table1.replace(model={"rolling_moments": "lambda", "lambda_": 1e-2})
+    params = ji.scene_parameters(scene)
+    assert ji.integration_settings(scene, params, 1.66, 40.0, np.float64).method == "kvaerno5"
+    check(scene, ref.table1_params(rolling_moments="lambda", lam=1e-2), 1.66, 40.0, W_PAPER)
 
 
 def test_float32_paper_impact_agrees_with_reference():
