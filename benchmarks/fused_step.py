@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaximpact._engine.tsit5 import _combine  # the engine's term-by-term stage sum
+
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
@@ -48,16 +50,6 @@ VARIANTS = {
     "forces": "fused, field outputs materialized",
     "trivial": "fused, trivial field (the loop alone)",
 }
-
-
-def _combine(weights, ks):
-    """``sum_i weights[i] ks[i]`` term by term in index order, exact zeros skipped."""
-    acc = None
-    for w, k in zip(weights, ks, strict=True):
-        if w == 0.0:
-            continue
-        acc = w * k if acc is None else acc + w * k
-    return acc
 
 
 def fused_loop(field, event, y0, p, *, rtol, atol, dt0, max_steps, controlled, variant):

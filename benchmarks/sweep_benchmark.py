@@ -310,6 +310,8 @@ def pipeline_worker(args) -> None:
 
 
 def pipeline(work: Path, chunk: int, chunks: int, repeats: int, configs) -> list[dict]:
+    from jaximpact.sweep import default_chunk_size
+
     rows = []
     for precision, devices in configs:
         env = dict(os.environ, JAX_PLATFORMS="cpu")
@@ -317,7 +319,7 @@ def pipeline(work: Path, chunk: int, chunks: int, repeats: int, configs) -> list
             env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
         ).strip()
         cmd = [sys.executable, __file__, "--pipeline-worker", "--workdir", str(work)]
-        size = chunk or (32768 if (precision, devices) == ("float32", 1) else 8192)  # the default
+        size = chunk or default_chunk_size(np.dtype(precision), devices)
         cmd += ["--precision", precision, "--chunk-size", str(size)]
         cmd += ["--pipeline-chunks", str(chunks), "--repeats", str(repeats)]
         run = subprocess.run(cmd, env=env, capture_output=True, text=True)
