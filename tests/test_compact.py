@@ -105,3 +105,47 @@ def test_programs_give_the_same_derivatives(table1):
     for p in ("compact",):
         err = np.abs(jac[p] - jac["throughput"]) / typical
         assert err.max() < 1e-5, (p, err)
+
+
+@pytest.mark.parametrize("stages", STAGE_FORMS)
+def test_kept_dense_output_locates_the_event_as_the_repeated_step_does(stages):
+    """The loop form keeps the last step's dense output in the lane state instead of taking
+    that step again to locate the event: the same crossing and state, to the root finder's
+    tolerance (1e-12: the step compiled twice may round differently, which moves Newton's
+    iterates), with the same derivatives; the empty dense output has the step's structure,
+    shapes and dtypes."""
+    import optimistix as optx
+
+    from jaximpact._engine import step_loop
+
+    term = diffrax.ODETerm(lambda t, y, args: {"x": y["v"], "v": -args * y["x"] - 0.1 * y["v"]})
+    solver = LaneTsit5(stages=stages)
+    y0 = {"x": jnp.asarray(1.0), "v": jnp.asarray(0.3)}
+    step = solver.step(term, 0.0, 0.1, y0, 2.0, solver.init(term, 0.0, 0.1, y0, 2.0), False)
+    want = jax.tree_util.tree_map(lambda a: (a.shape, a.dtype), step[2])
+    got = jax.tree_util.tree_map(lambda a: (a.shape, a.dtype), solver.empty_dense_info(y0))
+    assert got == want
+
+    def crossing(omega2, keep_dense):  # the first time x falls through 0
+        options = dict(
+            event=diffrax.Event(
+                lambda t, y, args, **kw: y["x"], root_finder=optx.Newton(rtol=1e-12, atol=1e-12)
+            ),
+            stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-10),
+            max_steps=1000,
+            keep_dense=keep_dense,
+        )
+        init, running, step, finish = step_loop.lane_functions(
+            term, solver, 0.0, 100.0, 0.01, y0, **options
+        )
+        s = jax.lax.while_loop(running, lambda s: step(s, omega2), init(y0, omega2))
+        sol = finish(s, omega2)
+        return sol.ts[0], sol.ys["v"][0]
+
+    for omega2 in (2.0, 7.5):
+        kept, repeated = crossing(omega2, True), crossing(omega2, False)
+        assert 0.0 < float(kept[0]) < 100.0
+        np.testing.assert_allclose(np.asarray(kept), np.asarray(repeated), rtol=1e-10)
+        d_kept = jax.jacfwd(lambda w: crossing(w, True))(omega2)
+        d_repeated = jax.jacfwd(lambda w: crossing(w, False))(omega2)
+        np.testing.assert_allclose(np.asarray(d_kept), np.asarray(d_repeated), rtol=1e-9)

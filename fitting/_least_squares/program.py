@@ -82,6 +82,8 @@ class ResidualProgram:
         return r, jac, status
 
     def _batch(self, U, value, scale):
+        if self.starts == 1:  # no vmap to trace through (about 2 s of a cold fit's tracing)
+            return jax.tree_util.tree_map(lambda x: x[None], self._one_start(U[0], value, scale))
         return jax.vmap(self._one_start, in_axes=(0, None, None))(U, value, scale)
 
     @property

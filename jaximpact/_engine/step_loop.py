@@ -36,12 +36,19 @@ def supported(solver, controller, event) -> bool:
     )
 
 
-def lane_functions(term, solver, t0, t1, dt0, y0, *, event, stepsize_controller, max_steps):
+def lane_functions(
+    term, solver, t0, t1, dt0, y0, *, event, stepsize_controller, max_steps, keep_dense=False
+):
     """The pieces of one lane's solve: ``init(y0, args) -> state``, ``running(state)``,
     ``step(state, args) -> state`` and ``finish(state, args) -> LeanSolution``, called in
     that order they are :func:`diffeqsolve_lean`; :func:`solve_pool` calls them on lanes
-    that change impacts. ``y0``: an initial state (or a batch of them), for its float type."""
+    that change impacts. ``y0``: an initial state (or a batch of them), for its float type.
+
+    ``keep_dense``: the state keeps the last step's dense output (its stages), from which
+    ``finish`` locates the event; else it keeps the step's inputs and ``finish`` takes that
+    step again (see :func:`diffeqsolve_lean` for which is used where)."""
     lane = _Lane(term, solver, t0, t1, dt0, y0, event, stepsize_controller, max_steps)
+    lane.keep_dense = keep_dense
     return lane.init, lane.running, lane.step, lane.finish
 
 
@@ -78,12 +85,25 @@ class _Lane:
             result=RESULTS.where(jnp.zeros((), bool), RESULTS.successful, RESULTS.successful),
             event=jnp.zeros((), bool),
             value=self.cond_fn(t0, y0, args),
-            # the last attempted step, to repeat it in finish
+            # the last attempted step: its dense output, or its inputs to repeat it in finish
             ev_tprev=t0,
             ev_tnext=t0,
-            ev_y=y0,
-            ev_state=solver_state,
+            **(
+                dict(ev_dense=self._no_dense(y0, args, solver_state))
+                if self.keep_dense
+                else dict(ev_y=y0, ev_state=solver_state)
+            ),
         )
+
+    def _no_dense(self, y0, args, solver_state):
+        """Zeros shaped as a step's dense output (the state's entry before the first step)."""
+        if hasattr(self.solver, "empty_dense_info"):
+            return self.solver.empty_dense_info(y0)
+        shapes = jax.eval_shape(
+            lambda y, a, st: self.solver.step(self.term, self.t0, self.t0, y, a, st, False)[2],
+            y0, args, solver_state,
+        )  # fmt: skip
+        return jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), shapes)
 
     def unfinished(self, s):  # diffrax's cond_fun
         return (s["tprev"] < self.t1) & is_successful(s["result"])
@@ -93,7 +113,7 @@ class _Lane:
 
     def step(self, s, args):
         t1 = self.t1
-        y1, y_error, _, new_state, step_result = self.solver.step(
+        y1, y_error, dense, new_state, step_result = self.solver.step(
             self.term, s["tprev"], s["tnext"], s["y"], args, s["solver_state"], False
         )
         y_error = jax.tree_util.tree_map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
@@ -127,8 +147,11 @@ class _Lane:
             value=value,
             ev_tprev=s["tprev"],
             ev_tnext=s["tnext"],
-            ev_y=s["y"],
-            ev_state=s["solver_state"],
+            **(
+                dict(ev_dense=dense)
+                if self.keep_dense
+                else dict(ev_y=s["y"], ev_state=s["solver_state"])
+            ),
         )
 
     def finish(self, s, args):
@@ -150,9 +173,12 @@ class _Lane:
     def root_find(self, s, args, result, happened):
         """The event's time and state in the last step (lanes without one: the step's end)."""
         solver, cond_fn = self.solver, self.cond_fn
-        _, _, dense_info, _, _ = solver.step(
-            self.term, s["ev_tprev"], s["ev_tnext"], s["ev_y"], args, s["ev_state"], False
-        )
+        if self.keep_dense:
+            dense_info = s["ev_dense"]
+        else:
+            _, _, dense_info, _, _ = solver.step(
+                self.term, s["ev_tprev"], s["ev_tnext"], s["ev_y"], args, s["ev_state"], False
+            )
         interp = solver.interpolation_cls(t0=s["ev_tprev"], t1=s["ev_tnext"], **dense_info)
 
         def event_value(t, y):  # lanes without an event: the end of the step
@@ -172,8 +198,18 @@ class _Lane:
 
 def diffeqsolve_lean(term, solver, t0, t1, dt0, y0, args, **options):
     """One solve (one lane; ``vmap`` it), as ``diffrax.diffeqsolve(..., throw=False)``.
-    ``options``: ``event``, ``stepsize_controller``, ``max_steps``."""
-    init, running, step, finish = lane_functions(term, solver, t0, t1, dt0, y0, **options)
+    ``options``: ``event``, ``stepsize_controller``, ``max_steps``.
+
+    The stages-in-a-loop form (the compact program, which every derivative uses) keeps the
+    last step's dense output in the state, so the program holds one step instead of two:
+    measured on the fit's program (25 impacts, 3 tangents), about 1 s less compiling and
+    0.7 s less tracing, the same bits and the same time per call. The unrolled form
+    recomputes the step: keeping its 7 x 10 stage arrays per lane cost 25 % of the float64
+    rate on 20,000 impacts (5,400 against 7,100 impacts/s) and compiled no faster."""
+    keep_dense = getattr(solver, "stages", None) == "loop"
+    init, running, step, finish = lane_functions(
+        term, solver, t0, t1, dt0, y0, keep_dense=keep_dense, **options
+    )
     s = jax.lax.while_loop(running, lambda s: step(s, args), init(y0, args))
     return finish(s, args)
 

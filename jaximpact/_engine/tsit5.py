@@ -147,5 +147,13 @@ class LaneTsit5(diffrax.AbstractAdaptiveSolver):
         dense_info = dict(y0=y0, y1=y1, k=ks)
         return y1, unravel(h * error), dense_info, ks[6], diffrax.RESULTS.successful
 
+    def empty_dense_info(self, y0):
+        """Zeros shaped as ``step``'s dense output at state ``y0`` (no vector field traced)."""
+        zeros = jtu.tree_map(jnp.zeros_like, y0)
+        if self.stages == "loop":
+            flat = ravel_pytree(y0)[0]
+            return dict(y0=zeros, y1=zeros, k=jnp.zeros((7, *flat.shape), flat.dtype))
+        return dict(y0=zeros, y1=zeros, k=tuple(zeros for _ in range(7)))
+
     def func(self, terms, t0, y0, args):
         return terms.vf(t0, y0, args)
