@@ -16,7 +16,7 @@ import jax.numpy as jnp
 MAX_ITERATIONS = 64
 
 
-def locate(path, event, lower, upper, rtol, atol):
+def locate(path, event, lower, upper, rtol, atol, *, search=None):
     """The crossing of ``event(t, path(t))`` (decreasing through zero) in ``[lower, upper]``.
 
     Arguments:
@@ -25,6 +25,10 @@ def locate(path, event, lower, upper, rtol, atol):
         lower, upper: the step.
         rtol, atol: converged when the last change of ``t`` is below ``atol + rtol |t|`` and
             ``|event| <= atol``, or when the bracket is that narrow.
+        search: ``(path, event)`` built from the same data with its derivatives stopped
+            (``lax.stop_gradient``), for the iteration. Then no tangent enters the iteration's
+            loop, and JAX neither differentiates it nor batches it over tangent directions
+            (the fit's program: about 1 s less tracing). Default: ``path`` and ``event``.
 
     Returns:
         ``(t, y, found)``: the crossing time, the state there and whether the iteration
@@ -36,7 +40,9 @@ def locate(path, event, lower, upper, rtol, atol):
     """
     frozen = jax.lax.stop_gradient
 
-    def along(t):  # value and time derivative of the event, and the state
+    search_path, search_event = (path, event) if search is None else search
+
+    def along(t, path=path, event=event):  # value and time derivative of the event, the state
         y, y_dot = jax.jvp(path, (t,), (jnp.ones_like(t),))
         value, slope = jax.jvp(event, (t, y), (jnp.ones_like(t), y_dot))
         return value, slope, y, y_dot
@@ -46,7 +52,7 @@ def locate(path, event, lower, upper, rtol, atol):
 
     def body(state):
         t, lo, hi, _, _, i = state
-        value, slope, _, _ = frozen(along(t))  # the iteration carries no tangents
+        value, slope, _, _ = frozen(along(t, search_path, search_event))  # no tangents
         before = value > 0  # the root is later than t
         lo, hi = jnp.where(before, t, lo), jnp.where(before, hi, t)
         newton = t - value / slope
