@@ -5,6 +5,7 @@ plain ``lax.while_loop``, the same arithmetic); design notes in docs/engine.md."
 
 import diffrax
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -156,14 +157,22 @@ class _Lane:
     def finish(self, s, args):
         result = s["result"]
         happened = s["event"]
-        # Every lane takes the root find and keeps it where its event happened: no `lax.cond`
-        # on whether any lane had one (nearly every batch has), which JAX traced three times
-        # over under a derivative (1.5 s of the fit's 4 s of tracing), and a lane without an
-        # event ends where its loop did, whatever else is in its batch.
-        t_event, y_event, result_event = self.root_find(s, args, result, happened)
-        tfinal = jnp.where(happened, t_event, s["tprev"])
-        yfinal = jax.tree_util.tree_map(lambda a, b: jnp.where(happened, a, b), y_event, s["y"])
-        result = RESULTS.where(happened, result_event, result)
+
+        def located():  # a lane without an event ends where its loop did, whatever its batch
+            t_event, y_event, result_event = self.root_find(s, args, result, happened)
+            return (
+                jnp.where(happened, t_event, s["tprev"]),
+                jax.tree_util.tree_map(lambda a, b: jnp.where(happened, a, b), y_event, s["y"]),
+                RESULTS.where(happened, result_event, result),
+            )
+
+        if self.keep_dense:  # a cheap root find (no step): no cond, which JAX would trace
+            tfinal, yfinal, result = located()  # three times over under a derivative
+        else:  # only where some lane had an event: without the cond the unrolled program,
+            # whose root find takes the last step again, compiled 1-3 s slower (measured)
+            tfinal, yfinal, result = jax.lax.cond(
+                eqxi.unvmap_any(happened), located, lambda: (s["tprev"], s["y"], result)
+            )
         result = RESULTS.where(self.unfinished(s), RESULTS.max_steps_reached, result)
         return LeanSolution(
             ts=tfinal[None],
