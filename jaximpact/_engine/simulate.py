@@ -32,6 +32,7 @@ from .solvers import (
     make_controller,
     make_solver,
 )
+from .devices import loop_kernels
 from .tsit5 import lane_group
 
 PARAMETERS = ("radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda")
@@ -535,6 +536,10 @@ PROGRAMS = {"throughput": "per_state", "compact": "loop"}
 # where a larger batch is better.
 CHUNK = 2048
 CHUNK_ONE_DEVICE = 8192
+# With step loops compiled as single kernels (``use_all_cpu_cores(loop_kernels=True)``, as
+# the CLI does) a device's chunk runs on one core from its caches: 64 lanes ran 23,200
+# float64 impacts/s on 2 cores against 21,300 at 16 and 19,200 at 256 (BENCHMARKS.md).
+CHUNK_LOOP_KERNEL = 64
 # The pooled lean loop's tail: once no impact is left to start and at most 1/TAIL_FRACTION of
 # the lanes still run, they go on in that many lanes (``step_loop.solve_pool``).
 TAIL_FRACTION = 16
@@ -543,7 +548,10 @@ TAIL_FRACTION = 16
 def _default_chunk(shards: int, dtype=None) -> int:
     if jax.default_backend() != "cpu":
         return 0
-    per_float64 = CHUNK if shards > 1 else CHUNK_ONE_DEVICE
+    if loop_kernels():
+        per_float64 = CHUNK_LOOP_KERNEL
+    else:
+        per_float64 = CHUNK if shards > 1 else CHUNK_ONE_DEVICE
     return per_float64 * 8 // jnp.dtype(dtype or jnp.result_type(float)).itemsize
 
 
@@ -670,51 +678,53 @@ def _solve_batch(terms, cfg, chunk, shards, loop, adjoint, inputs):
     after another inside the compiled program. A lane's arithmetic does not depend on its chunk
     (every operation is elementwise over lanes, and a chunk holds at least 2 lanes), so outputs
     and step counts are bitwise those of the unchunked batch. ``shards``: the batch is split in
-    that many contiguous parts over devices (``_shard_over_devices``); each chunk then takes
-    its lanes from every part alike, so no lane changes device. ``loop``: see ``_solve_one``.
+    that many contiguous parts, one per device (``_shard_over_devices``), each solved on its
+    device as a batch of its own. ``loop``: see ``_solve_one``.
     """
+    if shards > 1:
+        # Each device solves its part on its own (``shard_map``): as one partitioned program
+        # every step waited for an all-reduce of "any lane still running" over the devices
+        # (measured on 2 CPU devices, 20,000 impacts: 22,400 against 19,400 impacts/s).
+        per_device = functools.partial(_solve_batch, terms, cfg, chunk, 1, loop, adjoint)
+        # (check_vma=False: the loops' carries start from constants that JAX's type check
+        # would want cast to per-device values; nothing here crosses devices.)
+        spec = jax.sharding.PartitionSpec("batch")
+        return jax.shard_map(
+            per_device, mesh=_batch_mesh(), in_specs=spec, out_specs=spec, check_vma=False
+        )(inputs)
     params, speed, angle_deg, omega0 = inputs
     solve = lambda xs: jax.vmap(  # noqa: E731
         lambda prm, s, a, w: _solve_one(terms, cfg, prm, s, a, w, adjoint, loop)
     )(*xs)
     size = speed.shape[0]
-    # lanes per device and chunk: the chunks as equal as can be, whole lane groups (per_state)
+    # lanes per chunk: the chunks as equal as can be, whole lane groups (per_state)
     group = lane_group(speed.dtype, cfg.stages)
-    per = size // shards  # lanes per device
-    n_chunks = -(-per // chunk) if chunk else 1
-    width = min(-(-per // (n_chunks * group)) * group, per)
+    n_chunks = -(-size // chunk) if chunk else 1
+    width = min(-(-size // (n_chunks * group)) * group, size)
     first = jax.tree_util.tree_map(lambda x: x[0], inputs)
     if (
         loop == "pool"
         and chunk
-        and not size % shards
         and jnp.finfo(speed.dtype).bits < 64
         and _lean_supported(_problem(terms, cfg, *first))
     ):
-        # float32: lanes that take the next impact as theirs finish, on each device's part of
-        # the batch (``step_loop.solve_pool``), for every batch size alike. Measured (issue
-        # 12): 9-12x the chunked loop on slow impacts near capture, where a few grazing ones
-        # take 40x the median steps; 0.95-1.01x on the oblique benchmark. Not for float64,
-        # where it ran 0.86-0.93x the chunked loop on that benchmark (1.31x near capture).
+        # float32: lanes that take the next impact as theirs finish (``step_loop.solve_pool``),
+        # for every batch size alike. Measured (issue 12): 9-12x the chunked loop on slow
+        # impacts near capture, where a few grazing ones take 40x the median steps; 0.95-1.01x
+        # on the oblique benchmark. Not for float64, where it ran 0.86-0.93x the chunked loop
+        # on that benchmark (1.31x near capture).
         tail = -(-width // (TAIL_FRACTION * group)) * group
-        parts = jax.tree_util.tree_map(lambda x: x.reshape(shards, per), inputs)
-        out = jax.vmap(lambda xs: _solve_pooled(terms, cfg, xs, width, tail))(parts)
-        return jax.tree_util.tree_map(lambda y: y.reshape(size), out)
-    if not chunk or size % shards or size <= shards * chunk:
+        return _solve_pooled(terms, cfg, inputs, width, tail)
+    if not chunk or size <= chunk:
         return solve(inputs)
-    n_chunks = -(-per // width)
-    pad = n_chunks * width - per
+    n_chunks = -(-size // width)
+    pad = n_chunks * width - size
 
-    def split(x):  # (size,) -> (n_chunks, shards * width), each device's lanes in its columns
-        x = jnp.pad(x.reshape(shards, per), ((0, 0), (0, pad)), mode="edge")
-        return x.reshape(shards, n_chunks, width).swapaxes(0, 1).reshape(n_chunks, -1)
-
-    def merge(y):
-        y = y.reshape(n_chunks, shards, width).swapaxes(0, 1).reshape(shards, -1)
-        return y[:, :per].reshape(size)
+    def split(x):  # (size,) -> (n_chunks, width)
+        return jnp.pad(x, (0, pad), mode="edge").reshape(n_chunks, width)
 
     out = jax.lax.map(solve, jax.tree_util.tree_map(split, inputs))
-    return jax.tree_util.tree_map(merge, out)
+    return jax.tree_util.tree_map(lambda y: y.reshape(-1)[:size], out)
 
 
 def _solve_pooled(terms, cfg, inputs, lanes, tail_lanes):
@@ -925,12 +935,16 @@ def _shard_over_devices(inputs, size, group=1):
         pad = -size % group
         return jax.tree_util.tree_map(lambda x: jnp.pad(x, (0, pad), mode="edge"), inputs), 1
     pad = -size % (len(devices) * group)
-    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+    sharding = jax.sharding.NamedSharding(_batch_mesh(), jax.sharding.PartitionSpec("batch"))
     inputs = jax.tree_util.tree_map(
         lambda x: jax.device_put(jnp.pad(x, (0, pad), mode="edge"), sharding), inputs
     )
     return inputs, len(devices)
+
+
+def _batch_mesh():
+    """The local devices as a 1-D mesh over the batch axis."""
+    return jax.sharding.Mesh(np.array(jax.local_devices()), ("batch",))
 
 
 def integration_settings(scene, params, speed, angle_deg, dtype, method=None) -> Integration:

@@ -29,13 +29,8 @@ def _runner(terms, cfg, devices):
     """The jitted, sharded program that solves one chunk (cached per model, solver, devices).
 
     A ``jit`` of the simulator's batch function with its inputs sharded along the batch over a
-    1-D mesh of the local devices: XLA's SPMD partitioner gives each device its slice of the
-    chunk. The compiled program exchanges no data between devices, only one boolean per solver
-    step (the batched while-loop's "any impact still running", an all-reduce), so the devices
-    step in lockstep as a single-device ``vmap`` does for its whole batch. (``jax.shard_map``,
-    which would let each device stop on its own, does not work here: under it lineax, used by
-    the event root finder, rejects the manual-mesh shardings of its own traced values -
-    "pytree does not match out_structure" - with jax 0.10.)
+    1-D mesh of the local devices; inside, ``simulate``'s batch path gives each device its
+    slice (``jax.shard_map``), which it solves on its own: the devices exchange no data.
 
     Inside, the chunk is solved as ``simulate`` solves a batch of that size on these devices:
     the same lanes per device at a time (``chunk``, ``shards``; ``lax.map`` over sub-chunks on
