@@ -22,6 +22,7 @@ from .._model.scene import (
 )
 from .._model.units import ScaledParameters, hertz_units
 from . import step_loop
+from .devices import loop_kernels
 from .results import ImpactResult, Status
 from .solvers import (
     CAP_WIDTH,
@@ -32,7 +33,6 @@ from .solvers import (
     make_controller,
     make_solver,
 )
-from .devices import loop_kernels
 from .tsit5 import lane_group
 
 PARAMETERS = ("radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda")
