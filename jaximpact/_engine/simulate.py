@@ -537,9 +537,11 @@ PROGRAMS = {"throughput": "per_state", "compact": "loop"}
 CHUNK = 2048
 CHUNK_ONE_DEVICE = 8192
 # With step loops compiled as single kernels (``use_all_cpu_cores(loop_kernels=True)``, as
-# the CLI does) a device's chunk runs on one core from its caches: 64 lanes ran 23,200
-# float64 impacts/s on 2 cores against 21,300 at 16 and 19,200 at 256 (BENCHMARKS.md).
-CHUNK_LOOP_KERNEL = 64
+# the CLI does) a device's chunk runs on one core from its caches. Unfused (the throughput
+# program, ``compiler_options``), 128 lanes ran 31,500 float64 impacts/s on 2 cores against
+# 30,500 at 256 and 33,900 at 64 (which compiled in 24 s against 9 s); fused, 64 lanes ran
+# 23,600, 16 21,300 and 256 19,200 (BENCHMARKS.md).
+CHUNK_LOOP_KERNEL = 128
 # The pooled lean loop's tail: once no impact is left to start and at most 1/TAIL_FRACTION of
 # the lanes still run, they go on in that many lanes (``step_loop.solve_pool``).
 TAIL_FRACTION = 16
@@ -555,15 +557,32 @@ def _default_chunk(shards: int, dtype=None) -> int:
     return per_float64 * 8 // jnp.dtype(dtype or jnp.result_type(float)).itemsize
 
 
-def _simulate_flat(*args, **kwargs):
+def _simulate_flat(terms, cfg, *args, **kwargs):
     """:func:`_solve_flat`, compiled and cached; inlined where the caller is being traced
     under ``jax.jit`` already. A nested jit would make JAX trace the batch three times more
     than needed under ``jax.jacfwd``: the primal of :func:`_differentiable`'s custom JVP, and
     the whole tangent program again to batch it over the tangent directions, which act on
     the rule's last sums only (measured on the fit's program: tracing 3.4 against 6.1 s)."""
     if _under_jit():
-        return _solve_flat(*args, **kwargs)
-    return _solve_flat_jit(*args, **kwargs)
+        return _solve_flat(terms, cfg, *args, **kwargs)
+    unfused = bool(compiler_options(cfg))
+    return _SOLVE_FLAT_JIT[unfused](terms, cfg, *args, **kwargs)
+
+
+# XLA's operation fusion off: the throughput program's setting where step loops are single
+# kernels (``use_all_cpu_cores``). XLA:CPU makes one fusion per output and copies cheap
+# operations into every fusion that uses them (the float64 step: 136 fusions holding 6,000
+# operations against 1,300 unfused); inside one kernel, reading an unfused operation's result
+# back from the cache costs less than computing it again: 20,000 float64 impacts on 2 cores
+# ran 31,500/s against 23,600/s fused (chunks of 128 lanes; compiling 9 s against 6 s).
+UNFUSED = {"xla_disable_hlo_passes": "fusion"}
+
+
+def compiler_options(cfg: Integration) -> dict:
+    """XLA options for a compiled batch of ``cfg``'s program on this process's devices."""
+    if jax.default_backend() == "cpu" and loop_kernels() and cfg.stages == "per_state":
+        return UNFUSED
+    return {}
 
 
 def _under_jit() -> bool:
@@ -599,7 +618,10 @@ def _solve_flat(
     return _differentiable(solve, solve_with_tangents)(inputs)
 
 
-_solve_flat_jit = eqx.filter_jit(_solve_flat)
+_SOLVE_FLAT_JIT = {
+    False: eqx.filter_jit(_solve_flat),
+    True: eqx.filter_jit(_solve_flat, compiler_options=UNFUSED),
+}
 
 
 def _lean_method(cfg: Integration) -> bool:

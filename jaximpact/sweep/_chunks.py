@@ -45,7 +45,7 @@ def _runner(terms, cfg, devices):
     from jax.sharding import PartitionSpec as P
 
     from .._engine.results import OUTPUT_FIELDS
-    from .._engine.simulate import _default_chunk, _simulate_flat
+    from .._engine.simulate import _default_chunk, _simulate_flat, compiler_options
     from .._engine.tsit5 import lane_group
 
     shards = len(devices)
@@ -67,6 +67,7 @@ def _runner(terms, cfg, devices):
 
         fn = jax.jit(
             sweep_chunk,
+            compiler_options=compiler_options(cfg),
             in_shardings=sharding,
             out_shardings=(sharding, NamedSharding(mesh, P(None, "batch"))),
         )
