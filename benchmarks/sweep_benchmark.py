@@ -310,12 +310,14 @@ def pipeline_worker(args) -> None:
 
 
 def pipeline(work: Path, chunk: int, chunks: int, repeats: int, configs) -> list[dict]:
+    from jaximpact._engine.devices import _with_loop_kernels
     from jaximpact.sweep import default_chunk_size
 
     rows = []
     for precision, devices in configs:
         env = dict(os.environ, JAX_PLATFORMS="cpu")
-        env["XLA_FLAGS"] = (
+        # XLA's settings as the command line makes them (``use_all_cpu_cores``: loop kernels)
+        env["XLA_FLAGS"] = _with_loop_kernels(
             env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
         ).strip()
         cmd = [sys.executable, __file__, "--pipeline-worker", "--workdir", str(work)]
