@@ -320,7 +320,7 @@ def test_default_chunk_size_by_precision_and_kept_when_continuing(impacts, refer
 
     assert default_chunk_size(np.float64) == 8192
     assert default_chunk_size(np.float32) == 32768
-    assert default_chunk_size(np.float32, devices=2) == 8192
+    assert default_chunk_size(np.float32, devices=2) == 32768
     # a sweep begun with 64-impact chunks continues with them when no chunk size is given
     out = tmp_path / "copy"
     shutil.copytree(reference[0], out)

@@ -42,20 +42,20 @@ from ._store import (
 from ._writer import _chunk_table, _Writer
 
 DEFAULT_CHUNK_SIZE = 8192
-# float32 on a single device: a float32 chunk computes ~7x faster than a float64 one, and one
-# CPU device refills its 16,384 lanes as impacts finish only within a chunk: at 8192 the sweep
-# ran 0.60 of ``simulate``'s marginal rate, at 32,768 0.97-1.01. On two devices (4096 lanes
-# each) 8192 ran 1.18 and 32,768 0.86 (BENCHMARKS.md, "Large sweeps").
+# float32: a chunk computes ~7x faster than a float64 one, and a chunk's fixed costs (dispatch,
+# Parquet) weigh more: at 8192 a sweep ran 0.60 of ``simulate``'s marginal rate on one device
+# and 0.79 on two (each device solving its part on its own, with loop kernels), at 32,768
+# 0.97-1.07 and 0.96 (BENCHMARKS.md, "Large sweeps").
 DEFAULT_CHUNK_SIZE_FLOAT32 = 32768
 
 
 def default_chunk_size(dtype, devices: int = 1) -> int:
-    """Impacts per chunk when none is given: 8192, or 32,768 in float32 on a single device."""
+    """Impacts per chunk when none is given: 8192, or 32,768 in float32 (``devices``: kept for
+    callers; the default no longer depends on it)."""
     import numpy as np
 
-    if np.dtype(dtype).itemsize < 8 and devices == 1:
-        return DEFAULT_CHUNK_SIZE_FLOAT32
-    return DEFAULT_CHUNK_SIZE
+    del devices
+    return DEFAULT_CHUNK_SIZE_FLOAT32 if np.dtype(dtype).itemsize < 8 else DEFAULT_CHUNK_SIZE
 
 
 # Test hook only: after this many chunks are committed in one run, write the next part file and
@@ -123,7 +123,7 @@ def run_sweep(
             scene.
         chunk_size: impacts per chunk; a multiple of the number of local JAX devices.
             ``None``: the sweep's own when continuing one, else :func:`default_chunk_size`
-            (8192; 32,768 in float32 on a single device).
+            (8192; 32,768 in float32).
         restart: delete results made with other settings (or any results) and start over.
         progress: show a tqdm progress bar on stderr (impacts/s, ETA).
         process_index, process_count: this process's share (chunks ``i`` with

@@ -157,7 +157,7 @@ def add_sweep_command(sub) -> None:
         default=None,
         help=f"impacts per chunk, a multiple of the local device count (default: the sweep's "
         f"own when continuing one, else {DEFAULT_CHUNK_SIZE}, or "
-        f"{DEFAULT_CHUNK_SIZE_FLOAT32} in float32 on a single device); memory grows with it",
+        f"{DEFAULT_CHUNK_SIZE_FLOAT32} in float32); memory grows with it",
     )
     sw.add_argument("--precision", choices=("float64", "float32"), default="float64")
     sw.add_argument("--restart", action="store_true", help="discard existing results in the output")
