@@ -273,6 +273,21 @@ def test_ring_moment_integral_opposes_b(regime, width):
         assert np.all(i1 * b < 0)
 
 
+@pytest.mark.parametrize("width", [0.0, RING_WIDTH, 0.1])
+@pytest.mark.parametrize("regime", REGIMES)
+def test_spin_free_ring_is_the_ring_at_zero_spin(regime, width):
+    """``b = None`` (the models without the analytical moments) is the ring at ``b = 0``."""
+    ndot = jnp.asarray(ring_samples(regime)[0])
+    general = jax.vmap(_laws.ring_integrals, (0, None, None))(ndot, 0.0, width)
+    spin_free = _laws.ring_integrals(ndot, None, width)
+    np.testing.assert_allclose(spin_free[0], general[0], rtol=1e-14, atol=1e-14)
+    assert np.all(np.asarray(spin_free[1]) == 0.0)
+    force, moment = _laws.adhesion_damping(OVERLAPS[:, None], ndot, None, R, F0, C_A, width)
+    expected = _laws.adhesion_damping(OVERLAPS[:, None], ndot, 0.0, R, F0, C_A, width)[0]
+    np.testing.assert_allclose(force, expected, rtol=1e-14, atol=1e-14 * np.max(np.abs(expected)))
+    assert np.all(np.asarray(moment) == 0.0)
+
+
 @pytest.mark.parametrize("width", [0.0, 0.1])
 @pytest.mark.parametrize("regime", REGIMES)
 def test_ring_integrals_parity_in_b(regime, width):

@@ -124,7 +124,7 @@ def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w):
     if terms.adhesion:
         # The spin enters the ring only with the analytical moments, where the ring also
         # yields M_A; otherwise the spin-free ring keeps the adhesion damping dissipative.
-        ring_spin = w if terms.rolling_moments == "analytical" else jnp.zeros_like(w)
+        ring_spin = w if terms.rolling_moments == "analytical" else None
         f["F_A"] = laws.adhesion_force(n, p.radius, p.f0, terms.contact_floor)
         f["F_AD"], M_A = laws.adhesion_damping(
             n, ndot, ring_spin, p.radius, p.f0, p.C_A, terms.ring_width, terms.contact_floor

@@ -64,7 +64,19 @@ def ring_integrals(ndot, b, width=0.0):
     ``ndot = 0`` when ``b = 0``): ``b`` is replaced by ``b_eff = sqrt(b^2 + width^2)`` and
     ``ndot`` by ``ndot + width^2 / b_eff``. That shift keeps the regularized ring dissipative
     (power ``ndot*F + w*M <= 0`` exactly) and vanishes for ``|b| >> width``.
+
+    ``b = None``: a ring without spin (``b = 0``), with the terms of ``b`` left out (``b_eff``
+    is the width; ``I1 = 0``): the ring of every model without the analytical rolling moments,
+    evaluated six times a solver step.
     """
+    if b is None:
+        if width == 0.0:
+            return 2.0 * jnp.pi * jnp.maximum(-ndot, 0.0), jnp.zeros_like(ndot)
+        u0 = ndot + width
+        c = jnp.clip(-u0 / width, -1.0, 1.0)
+        s = safe_sqrt(1.0 - c * c)
+        i0 = -2.0 * u0 * (jnp.pi - jnp.arctan2(s, c)) + 2.0 * width * s
+        return i0, jnp.zeros_like(ndot)
     b_eff = safe_sqrt(b * b + width * width)
     safe_b_eff = jnp.where(b_eff > 0, b_eff, 1.0)
     u0 = ndot + jnp.where(b_eff > 0, width * width / safe_b_eff, 0.0)
@@ -86,10 +98,10 @@ def adhesion_damping(n, ndot, w, radius, f0, C_A, width=0.0, n_min=0.0):
     Line force ``f0 C_A (-u)`` (attractive) where the ring point separates (``u < 0``). Limits:
     ``w = 0`` gives ``2 pi a f0 C_A max(-ndot, 0)``; a wholly separating ring gives
     ``M_A = -pi f0 C_A a^3 w`` (eq. 12). This replaces the printed ``2 pi a f0 C_A ndot``,
-    which adds energy (CONVENTIONS erratum). Pass ``w = 0`` for the spin-free ring.
+    which adds energy (CONVENTIONS erratum). Pass ``w = None`` for the spin-free ring.
     """
     a = contact_radius(n, radius, n_min)
-    i0, i1 = ring_integrals(ndot, w * a, width)
+    i0, i1 = ring_integrals(ndot, None if w is None else w * a, width)
     return f0 * C_A * a * i0, f0 * C_A * a * a * i1
 
 
