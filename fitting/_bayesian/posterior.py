@@ -30,6 +30,8 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
+from jaximpact._engine.devices import engine_jit
+
 from .._least_squares.fit import FitResult, fit
 from .._least_squares.objective import FitError, Objective, check_names
 from .._least_squares.transforms import dphys_du, to_physical, to_unbounded
@@ -236,7 +238,7 @@ def _run_hmc(log_density, z0, metric, *, warmup, draws, seed, target_accept, pro
 
     # One compiled program for every step of warm-up and sampling (the step size, metric and
     # leapfrog count are inputs).
-    step = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
+    step = engine_jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
     da_init, da_update, _ = dual_averaging_adaptation(target_accept)
     da_update = jax.jit(da_update)
     rng = np.random.default_rng(seed)
@@ -253,7 +255,7 @@ def _run_hmc(log_density, z0, metric, *, warmup, draws, seed, target_accept, pro
         return _progress_bar(total, f"posterior {what} ({chains} chains)", "step", progress)
 
     t0 = time.perf_counter()
-    states = jax.jit(jax.vmap(lambda z: blackjax.hmc.init(z, log_density)))(jnp.asarray(z0))
+    states = engine_jit(jax.vmap(lambda z: blackjax.hmc.init(z, log_density)))(jnp.asarray(z0))
     imm = np.asarray(metric, dtype=float)
     step_size = 0.5  # in units of the metric's standard deviations
     first = warmup // 2
@@ -404,7 +406,7 @@ def _sample(
     starts_given = z0 is not None  # chains placed by hand: HMC from there
     log_density = _log_density(residuals, names, priors, np.asarray(groups), k, likelihood, nu)
     if batch_log_density is None:
-        batch_log_density = jax.jit(jax.vmap(log_density))
+        batch_log_density = engine_jit(jax.vmap(log_density))
     z0, metric, center = _starts_and_metric(
         u_center, cov_u, groups, log_noise_center, p, k, chains, jitter, seed, z0
     )
@@ -540,7 +542,7 @@ def _batch_log_density(objective: Objective, names, priors, groups, n_noise, lik
 
         return jax.vmap(one)(result, theta, Z)
 
-    return jax.jit(log_density)
+    return engine_jit(log_density)
 
 
 class _StudentT:
@@ -858,7 +860,7 @@ def _model_values(objective: Objective, names):
     """``U (n, p) -> model values (n, n_data)``: cor_n continued below zero where captured,
     as the residuals see it (one compiled program, draws as a batch)."""
     zero, one = jnp.zeros_like(objective._value), jnp.ones_like(objective._scale)
-    return jax.jit(jax.vmap(_model_residuals(objective, names, zero, one)))
+    return engine_jit(jax.vmap(_model_residuals(objective, names, zero, one)))
 
 
 def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):

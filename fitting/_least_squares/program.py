@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaximpact._engine.devices import compiler_options
 from jaximpact._io.cache import cached_program, runtime_checks_as_nan
 
 from .objective import Objective
@@ -132,7 +133,7 @@ class ResidualProgram:
         # program out of the caches; a NaN Jacobian is a rejected point for the solvers.
         with runtime_checks_as_nan():
             program, source = cached_program("fit", self._batch, example, key)
-            self._compiled = program.lower(*example).compile()
+            self._compiled = program.lower(*example).compile(compiler_options())
         self.stats["compiles"] += 1
         self.stats["source"] = source
         _MEMORY[key] = (self._compiled, source)

@@ -75,3 +75,39 @@ def loop_kernels() -> bool:
     """Whether XLA was asked (in ``XLA_FLAGS``) to compile step loops as single kernels."""
     match = re.search(_LOOP_OPTION + r"=(\d+)", os.environ.get("XLA_FLAGS", ""))
     return match is not None and int(match.group(1)) >= LOOP_KERNEL_BYTES // 4
+
+
+# XLA's operation fusion off: the throughput program's setting where step loops are single
+# kernels. XLA:CPU makes one fusion per output and copies cheap operations into every fusion
+# that uses them (the float64 step: 136 fusions holding 6,000 operations against 1,150
+# unfused); inside one kernel, reading an unfused operation's result back from the cache costs
+# less than computing it again: 20,000 float64 impacts on 2 cores ran 31,500/s against
+# 23,600/s fused (chunks of 128 lanes; compiling 9 s against 6 s).
+UNFUSED = {"xla_disable_hlo_passes": "fusion"}
+# XLA:CPU prefers 256-bit vectors where the CPU has 512-bit ones (against the clock slowdown
+# of early AVX-512 parts); a step loop is arithmetic on whole vectors of lanes (``lane_group``
+# pads every chunk to 512 bits), and 512-bit vectors ran 20,000 float64 impacts on 2 cores
+# about 1.4-2.2x faster (BENCHMARKS.md, "Loop kernels"). A CPU without them keeps its width.
+WIDE_VECTORS = {"xla_cpu_prefer_vector_width": 512}
+
+
+def compiler_options(throughput: bool = False) -> dict:
+    """XLA options for the engine's compiled programs in this process: 512-bit vectors on a
+    CPU; with loop kernels, a ``throughput`` program (unrolled stages, values only) also
+    without fusion. Call it where the program is built (it starts JAX's backend)."""
+    import jax
+
+    if jax.default_backend() != "cpu":
+        return {}
+    options = dict(WIDE_VECTORS)
+    if throughput and loop_kernels():
+        options.update(UNFUSED)
+    return options
+
+
+def engine_jit(fn, **kwargs):
+    """``jax.jit`` with :func:`compiler_options`: for programs that run the engine inside (a
+    fit's residuals and Jacobian, a sampler's log density)."""
+    import jax
+
+    return jax.jit(fn, compiler_options=compiler_options() or None, **kwargs)

@@ -22,7 +22,7 @@ from .._model.scene import (
 )
 from .._model.units import ScaledParameters, hertz_units
 from . import step_loop
-from .devices import loop_kernels
+from .devices import compiler_options, loop_kernels
 from .results import ImpactResult, Status
 from .solvers import (
     CAP_WIDTH,
@@ -565,24 +565,11 @@ def _simulate_flat(terms, cfg, *args, **kwargs):
     the rule's last sums only (measured on the fit's program: tracing 3.4 against 6.1 s)."""
     if _under_jit():
         return _solve_flat(terms, cfg, *args, **kwargs)
-    unfused = bool(compiler_options(cfg))
-    return _SOLVE_FLAT_JIT[unfused](terms, cfg, *args, **kwargs)
-
-
-# XLA's operation fusion off: the throughput program's setting where step loops are single
-# kernels (``use_all_cpu_cores``). XLA:CPU makes one fusion per output and copies cheap
-# operations into every fusion that uses them (the float64 step: 136 fusions holding 6,000
-# operations against 1,300 unfused); inside one kernel, reading an unfused operation's result
-# back from the cache costs less than computing it again: 20,000 float64 impacts on 2 cores
-# ran 31,500/s against 23,600/s fused (chunks of 128 lanes; compiling 9 s against 6 s).
-UNFUSED = {"xla_disable_hlo_passes": "fusion"}
-
-
-def compiler_options(cfg: Integration) -> dict:
-    """XLA options for a compiled batch of ``cfg``'s program on this process's devices."""
-    if jax.default_backend() == "cpu" and loop_kernels() and cfg.stages == "per_state":
-        return UNFUSED
-    return {}
+    options = compiler_options(throughput=cfg.stages == "per_state")
+    key = tuple(sorted(options.items()))
+    if key not in _SOLVE_FLAT_JIT:
+        _SOLVE_FLAT_JIT[key] = eqx.filter_jit(_solve_flat, compiler_options=options or None)
+    return _SOLVE_FLAT_JIT[key](terms, cfg, *args, **kwargs)
 
 
 def _under_jit() -> bool:
@@ -618,10 +605,8 @@ def _solve_flat(
     return _differentiable(solve, solve_with_tangents)(inputs)
 
 
-_SOLVE_FLAT_JIT = {
-    False: eqx.filter_jit(_solve_flat),
-    True: eqx.filter_jit(_solve_flat, compiler_options=UNFUSED),
-}
+# ``_solve_flat`` compiled with each set of XLA options (``compiler_options``), made on first use
+_SOLVE_FLAT_JIT: dict = {}
 
 
 def _lean_method(cfg: Integration) -> bool:

@@ -44,8 +44,9 @@ def _runner(terms, cfg, devices):
     from jax.sharding import Mesh, NamedSharding
     from jax.sharding import PartitionSpec as P
 
+    from .._engine.devices import compiler_options
     from .._engine.results import OUTPUT_FIELDS
-    from .._engine.simulate import _default_chunk, _simulate_flat, compiler_options
+    from .._engine.simulate import _default_chunk, _simulate_flat
     from .._engine.tsit5 import lane_group
 
     shards = len(devices)
@@ -67,7 +68,7 @@ def _runner(terms, cfg, devices):
 
         fn = jax.jit(
             sweep_chunk,
-            compiler_options=compiler_options(cfg),
+            compiler_options=compiler_options(throughput=cfg.stages == "per_state") or None,
             in_shardings=sharding,
             out_shardings=(sharding, NamedSharding(mesh, P(None, "batch"))),
         )
