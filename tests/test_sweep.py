@@ -61,6 +61,9 @@ def jaximpact_command() -> list[str]:
 
 def run_cli(args, env_extra=None, timeout=300):
     env = {k: v for k, v in os.environ.items() if k != "JAXIMPACT_SWEEP_KILL_AFTER"}
+    # Two devices with XLA's default compilation, as in this process: the CLI's loop kernels
+    # (its default) compile the same arithmetic differently, and the results here compare bits.
+    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     env.update(env_extra or {})
     return subprocess.run(
         [*jaximpact_command(), "sweep", *args, "--no-progress"],
@@ -412,6 +415,9 @@ def test_two_processes_with_jax_distributed(tmp_path):
     grid = ["--grid", "speed=0.5:4:10", "--grid", "angle_deg=-50:50:10", "--grid", "omega0=1e4"]
     env = {k: v for k, v in os.environ.items() if k != "JAXIMPACT_SWEEP_KILL_AFTER"}
     env["JAX_PLATFORMS"] = "cpu"
+    # Two devices with XLA's default compilation, as in this process: the CLI's loop kernels
+    # (its default) compile the same arithmetic differently, and the results here compare bits.
+    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     procs = [
         subprocess.Popen(
             [sys.executable, "-m", "jaximpact.cli", "sweep", *grid, "-o", str(out)]

@@ -38,7 +38,7 @@ import optax
 from tqdm.auto import tqdm
 
 import jaximpact
-from jaximpact._engine.devices import engine_jit
+from jaximpact._engine.devices import compiler_options
 from jaximpact._io.cache import runtime_checks_as_nan
 from jaximpact._model.ranges import IMPLAUSIBLE, RANGES, implausible
 from jaximpact.tables import number_text
@@ -441,7 +441,8 @@ def _solve_optax(
     if progress:
         print(f"compiling the {solver} loop ...", end="", file=sys.stderr, flush=True)
     with runtime_checks_as_nan():
-        compiled = engine_jit(solve).lower(jnp.asarray(points[0], _dtype())).compile()
+        program = jax.jit(solve).lower(jnp.asarray(points[0], _dtype()))
+        compiled = program.compile(compiler_options())
     loop_compile = time.perf_counter() - t1
     if progress:
         print(f" {loop_compile:.1f} s", file=sys.stderr, flush=True)

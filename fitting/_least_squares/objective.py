@@ -43,7 +43,6 @@ import numpy as np
 
 import jaximpact
 from jaximpact import scene_parameters, stiffness_estimate
-from jaximpact._engine.devices import engine_jit
 
 from .._data import OBSERVABLES, Observations, load_observations
 
@@ -243,8 +242,8 @@ class Objective:
 
         self.initial = {name: get_parameter(scene, name) for name in self.params}
         self.method = self._resolve_method(method, [self.initial, *check_values])
-        self._residuals = engine_jit(self._residuals_impl)
-        self._simulate = engine_jit(self._simulate_impl)
+        self._residuals = jax.jit(self._residuals_impl)
+        self._simulate = jax.jit(self._simulate_impl)
 
     # -- building blocks ---------------------------------------------------------------------
 

@@ -1,6 +1,7 @@
 """Settings of XLA's CPU backend that must be made before JAX starts: one device per core, and
 step loops compiled as single kernels."""
 
+import functools
 import os
 import re
 
@@ -106,8 +107,30 @@ def compiler_options(throughput: bool = False) -> dict:
 
 
 def engine_jit(fn, **kwargs):
-    """``jax.jit`` with :func:`compiler_options`: for programs that run the engine inside (a
-    fit's residuals and Jacobian, a sampler's log density)."""
+    """``jax.jit`` with :func:`compiler_options` where the program is compiled on its own: for
+    programs that run the engine inside (a sampler's steps and log density). Called while
+    another program is traced (a tracer among its arguments, or under ``jax.jit``) it is a
+    plain ``jax.jit``, whose program the caller's compiles (JAX refuses options there)."""
     import jax
 
-    return jax.jit(fn, compiler_options=compiler_options() or None, **kwargs)
+    plain = jax.jit(fn, **kwargs)
+    tuned = []  # made on first use: compiler_options() starts JAX's backend
+
+    @functools.wraps(fn)
+    def call(*args, **kw):
+        leaves = jax.tree_util.tree_leaves((args, kw))
+        if under_trace() or any(isinstance(x, jax.core.Tracer) for x in leaves):
+            return plain(*args, **kw)
+        if not tuned:
+            tuned.append(jax.jit(fn, compiler_options=compiler_options() or None, **kwargs))
+        return tuned[0](*args, **kw)
+
+    return call
+
+
+def under_trace() -> bool:
+    """Whether a ``jax.jit`` is being traced (JAX's own test, private; without it: no)."""
+    import jax
+
+    test = getattr(jax._src.core, "unsafe_am_i_under_a_jit", None)
+    return bool(test()) if test is not None else False

@@ -22,7 +22,7 @@ from .._model.scene import (
 )
 from .._model.units import ScaledParameters, hertz_units
 from . import step_loop
-from .devices import compiler_options, loop_kernels
+from .devices import compiler_options, loop_kernels, under_trace
 from .results import ImpactResult, Status
 from .solvers import (
     CAP_WIDTH,
@@ -563,20 +563,16 @@ def _simulate_flat(terms, cfg, *args, **kwargs):
     than needed under ``jax.jacfwd``: the primal of :func:`_differentiable`'s custom JVP, and
     the whole tangent program again to batch it over the tangent directions, which act on
     the rule's last sums only (measured on the fit's program: tracing 3.4 against 6.1 s)."""
-    if _under_jit():
+    if under_trace():
         return _solve_flat(terms, cfg, *args, **kwargs)
-    options = compiler_options(throughput=cfg.stages == "per_state")
+    # XLA options only on a program of its own: under a transformation (grad, vmap) this jit
+    # may end up inside another, whose options decide (JAX refuses them on a nested jit).
+    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(args))
+    options = {} if traced else compiler_options(throughput=cfg.stages == "per_state")
     key = tuple(sorted(options.items()))
     if key not in _SOLVE_FLAT_JIT:
         _SOLVE_FLAT_JIT[key] = eqx.filter_jit(_solve_flat, compiler_options=options or None)
     return _SOLVE_FLAT_JIT[key](terms, cfg, *args, **kwargs)
-
-
-def _under_jit() -> bool:
-    # JAX's own test (private; if a JAX release drops it, the nested jit is kept: the same
-    # program, traced more slowly).
-    test = getattr(jax._src.core, "unsafe_am_i_under_a_jit", None)
-    return bool(test()) if test is not None else False
 
 
 def _solve_flat(
