@@ -441,8 +441,8 @@ def _solve_optax(
     if progress:
         print(f"compiling the {solver} loop ...", end="", file=sys.stderr, flush=True)
     with runtime_checks_as_nan():
-        program = jax.jit(solve).lower(jnp.asarray(points[0], _dtype()))
-        compiled = program.compile(compiler_options())
+        lowered = jax.jit(solve).lower(jnp.asarray(points[0], _dtype()))
+        compiled = lowered.compile(compiler_options())
     loop_compile = time.perf_counter() - t1
     if progress:
         print(f" {loop_compile:.1f} s", file=sys.stderr, flush=True)
