@@ -13,7 +13,7 @@ import re
 # per core (and small chunks per device, ``_engine.simulate._default_chunk``). 8 MiB covers
 # the step loop of about 2,000 float64 lanes and leaves larger loops to the multi-threaded
 # runtime. LLVM's loop unrolling is turned off with it: a kernel of the unfused throughput
-# program (``_engine.simulate.compiler_options``) compiled in 9 s instead of 25 s and ran
+# program (:func:`compiler_options`) compiled in 9 s instead of 25 s and ran
 # 1.8x faster without it.
 LOOP_KERNEL_BYTES = 8 << 20
 _LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
@@ -118,14 +118,23 @@ def engine_jit(fn, **kwargs):
 
     @functools.wraps(fn)
     def call(*args, **kw):
-        leaves = jax.tree_util.tree_leaves((args, kw))
-        if under_trace() or any(isinstance(x, jax.core.Tracer) for x in leaves):
+        if not compiled_alone((args, kw)):
             return plain(*args, **kw)
         if not tuned:
             tuned.append(jax.jit(fn, compiler_options=compiler_options() or None, **kwargs))
         return tuned[0](*args, **kw)
 
     return call
+
+
+def compiled_alone(args) -> bool:
+    """Whether a jitted call with these arguments is a program of its own, which may take XLA
+    options: not while a ``jax.jit`` is traced, and no tracer among ``args`` (under ``grad`` or
+    ``vmap`` the jit may end up inside another program)."""
+    import jax
+
+    leaves = jax.tree_util.tree_leaves(args)
+    return not under_trace() and not any(isinstance(x, jax.core.Tracer) for x in leaves)
 
 
 def under_trace() -> bool:

@@ -22,7 +22,7 @@ from .._model.scene import (
 )
 from .._model.units import ScaledParameters, hertz_units
 from . import step_loop
-from .devices import compiler_options, loop_kernels, under_trace
+from .devices import compiled_alone, compiler_options, loop_kernels, under_trace
 from .results import ImpactResult, Status
 from .solvers import (
     CAP_WIDTH,
@@ -540,7 +540,7 @@ CHUNK_ONE_DEVICE = 8192
 # the CLI does) a device's chunk runs on one core from its caches. Unfused (the throughput
 # program, ``compiler_options``), 128 lanes ran 31,500 float64 impacts/s on 2 cores against
 # 30,500 at 256 and 33,900 at 64 (which compiled in 24 s against 9 s); fused, 64 lanes ran
-# 23,600, 16 21,300 and 256 19,200 (BENCHMARKS.md).
+# 23,600, 16 21,300 and 256 19,200 (measured with 256-bit vectors).
 CHUNK_LOOP_KERNEL = 128
 # The pooled lean loop's tail: once no impact is left to start and at most 1/TAIL_FRACTION of
 # the lanes still run, they go on in that many lanes (``step_loop.solve_pool``).
@@ -565,10 +565,9 @@ def _simulate_flat(terms, cfg, *args, **kwargs):
     the rule's last sums only (measured on the fit's program: tracing 3.4 against 6.1 s)."""
     if under_trace():
         return _solve_flat(terms, cfg, *args, **kwargs)
-    # XLA options only on a program of its own: under a transformation (grad, vmap) this jit
-    # may end up inside another, whose options decide (JAX refuses them on a nested jit).
-    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(args))
-    options = {} if traced else compiler_options(throughput=cfg.stages == "per_state")
+    # XLA options only on a program of its own (JAX refuses them on a nested jit)
+    alone = compiled_alone(args)
+    options = compiler_options(throughput=cfg.stages == "per_state") if alone else {}
     key = tuple(sorted(options.items()))
     if key not in _SOLVE_FLAT_JIT:
         _SOLVE_FLAT_JIT[key] = eqx.filter_jit(_solve_flat, compiler_options=options or None)
