@@ -229,6 +229,26 @@ def test_forward_and_reverse_jacobians_agree(tmp_path):
     np.testing.assert_allclose(jac_f, jac_r, rtol=1e-7, atol=1e-9 * np.max(np.abs(jac_f)))
 
 
+def test_second_process_loads_the_compiled_program(micro, tmp_path):
+    """A fit run again in a new process loads the compiled program from the cache (no
+    tracing, lowering or compiling) and gives the same numbers."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}  # the CLI's own settings
+    env["JAXIMPACT_CACHE_DIR"] = str(tmp_path / "cache")
+    cmd = [*_jaximpact_command(), "fit", str(micro["data"]), "--params", *NAMES]
+    cmd += ["--init", *(f"{k}={v}" for k, v in NEAR.items()), "--starts", "1", "--no-progress"]
+    results = []
+    for run_index in range(2):
+        out = tmp_path / f"fit{run_index}.json"
+        run = subprocess.run([*cmd, "-o", str(out)], capture_output=True, text=True, env=env)
+        assert run.returncode == 0, run.stderr
+        results.append(json.loads(out.read_text()))
+    assert [r["program"]["source"] for r in results] == ["traced", "executable"]
+    assert [p["value"] for p in results[0]["params"].values()] == [
+        p["value"] for p in results[1]["params"].values()
+    ]
+    assert list((tmp_path / "cache" / "compiled").glob("fit-*.executable"))
+
+
 def test_cache_dir_from_environment(monkeypatch, tmp_path):
     monkeypatch.setenv("JAXIMPACT_CACHE_DIR", "off")
     assert _cache.cache_dir() is None

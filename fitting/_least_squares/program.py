@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaximpact._engine.devices import compiler_options
-from jaximpact._io.cache import cached_program, runtime_checks_as_nan
+from jaximpact._io.cache import compiled_program, runtime_checks_as_nan
 
 from .objective import Objective
 from .transforms import to_physical
@@ -132,8 +132,9 @@ class ResidualProgram:
         # Equinox's checks as NaN: a raising check is a host callback, which would keep the
         # program out of the caches; a NaN Jacobian is a rejected point for the solvers.
         with runtime_checks_as_nan():
-            program, source = cached_program("fit", self._batch, example, key)
-            self._compiled = program.lower(*example).compile(compiler_options())
+            self._compiled, source = compiled_program(
+                "fit", self._batch, example, key, compiler_options()
+            )
         self.stats["compiles"] += 1
         self.stats["source"] = source
         _MEMORY[key] = (self._compiled, source)
@@ -141,7 +142,8 @@ class ResidualProgram:
             _MEMORY.popitem(last=False)
         self.compile_seconds = time.perf_counter() - t0
         if status:
-            how = "loaded traced program" if source == "cache" else "traced"
+            how = {"executable": "loaded compiled program", "cache": "loaded traced program"}
+            how = how.get(source, "traced")
             print(f" {self.compile_seconds:.1f} s ({how})", file=sys.stderr, flush=True)
         return self.compile_seconds
 
