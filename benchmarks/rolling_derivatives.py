@@ -8,7 +8,9 @@ Values: ``|d cor_n|``, ``|d vt_out|/speed``, ``|d omega_out| r/speed`` of reboun
 Derivatives (``output_jacobian``, compact program) with respect to f0, C_A, C_H, friction,
 lambda, speed, angle and spin, against central differences of the reference (Richardson),
 scaled to order one (``x d/dx``; vt by the speed, omega by speed/radius), each relative to its
-own magnitude, or to 1e-2 of the row's largest where smaller.
+own magnitude, or to 1e-2 of the row's largest where smaller ("derivatives max"); and, as the
+issue that set the 1e-3 target measured it, relative to the row's largest scaled derivative
+("max, row-scaled").
 
     python benchmarks/rolling_derivatives.py [--widths 1e-3,3e-4,1e-4] [--cache FILE.pkl]
 
@@ -96,7 +98,9 @@ def errors(cases, exact, width):
         inputs = tuple(c for c in INPUTS if not (c == "lambda" and params.lam == 0))
         got = ji.simulate(scene, speed, angle, omega0)
         jac = ji.output_jacobian(scene, speed, angle, omega0, inputs=inputs, program="compact")
-        kind = found.setdefault(params.rolling_moments, {"value": [], "deriv": [], "steps": []})
+        kind = found.setdefault(
+            params.rolling_moments, {"value": [], "deriv": [], "row": [], "steps": []}
+        )
         kind["steps"] += [int(s) for s in np.asarray(got.steps)]
         for i, (outcome, want) in enumerate(rows):
             if outcome.status != "rebound":
@@ -117,6 +121,7 @@ def errors(cases, exact, width):
                     value = float(np.asarray(jac[out])[i, j]) * s[c]
                     floor = max(abs(exact_row[c]), 1e-2 * typical)
                     kind["deriv"].append(abs(value - exact_row[c]) / floor)
+                    kind["row"].append(abs(value - exact_row[c]) / typical)
     return found
 
 
@@ -141,8 +146,8 @@ def main():
     print("### Rolling scenes\n")
     print(measured_line(info, f"python benchmarks/rolling_derivatives.py --widths {args.widths}"))
     print("| slip_width | moments | values max | derivatives max | median | > 1e-3 "
-          "| median steps |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|")
+          "| max, row-scaled | median steps |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|")
     for width in (float(w) for w in args.widths.split(",")):
         for kind, e in sorted(errors(cases, exact, width).items()):
             d = np.array(e["deriv"])
@@ -150,7 +155,7 @@ def main():
             print(
                 f"| {label} | {kind} | {max(e['value']):.1e} | {d.max():.1e} | "
                 f"{np.median(d):.1e} | {(d > 1e-3).sum()} of {d.size} | "
-                f"{np.median(e['steps']):.0f} |",
+                f"{max(e['row']):.1e} | {np.median(e['steps']):.0f} |",
                 flush=True,
             )
 
