@@ -14,9 +14,10 @@ State (a dict of scalars), by what the terms need:
 - the Mindlin tangential spring (``Terms.mindlin``): ``xi``, its elastic displacement.
 
 With ``Terms.ledger = False`` (``[solver] outputs = "rebound"``) only the motion ``n, ndot, vt,
-w`` is integrated: 1.2x (one device) to 1.3x (loop kernels) the float64 impacts/s of the full
-outputs on 20,000 oblique spinning impacts (2026-11-25; the fit's program measured 0.5x the
-time per call when it was introduced).
+w`` is integrated: 1.22-1.33x the impacts/s of the full outputs with loop kernels
+(``use_all_cpu_cores()``), but 0.8x on one CPU device with XLA's default settings, whose
+fusion of the smaller step recomputes more (25,200 against 23,000 compiled operations);
+20,000 oblique spinning impacts, 2026-11-25.
 """
 
 import equinox as eqx

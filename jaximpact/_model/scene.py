@@ -285,7 +285,10 @@ class Solver(eqx.Module):
     - `max_steps`: step limit per impact; an impact that reaches it is reported as failed.
     - `outputs`: ``"full"`` (default) or ``"rebound"``: only status, rebound velocities, spin,
       angles and contact time (energy ledger, ``max_overlap`` and ``roll_time`` are NaN);
-      1.2-1.3x faster (float64), for sweeps and fits that need no ledger.
+      for sweeps and fits that need no ledger. 1.2-1.3x faster where step loops are single
+      kernels (``use_all_cpu_cores()``, the command line); on one CPU device with XLA's
+      default settings 0.8x (XLA fuses the smaller step into more recomputation;
+      BENCHMARKS.md "By batch size and scene options").
     - `stiffness_limit`: with ``method="auto"``, the estimated stiffness (fastest relaxation rate
       times the Hertz time) above which the implicit solver is used. Tsit5 needs about that many
       steps per impact (lambda = 5e-3 N m on the Table 1 sphere: estimate 1109, 1191 steps);
