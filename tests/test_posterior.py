@@ -602,5 +602,10 @@ def test_cli_short_posterior_is_refused_with_exit_3_and_writes_json(tmp_path, ca
             "ess",
         }
     assert d["profile"]["name"] == "f0"
+    # The posterior's fit time is the CLI's fit's own (it was 0: timed from the posterior's
+    # start), and its total includes it.
+    post_t, fit_t = d["posterior"]["timings"], d["timings"]
+    assert post_t["fit"] == pytest.approx(fit_t["total"], abs=1e-3) and post_t["fit"] > 0
+    assert post_t["total"] >= post_t["fit"] + post_t["warmup"] + post_t["sampling"] - 1e-3
     assert (tmp_path / "draws.nc").stat().st_size > 0
     assert (tmp_path / "corner.png").stat().st_size > 0

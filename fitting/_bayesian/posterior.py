@@ -106,7 +106,8 @@ class PosteriorResult:
             acceptance: mean acceptance rate.
         evaluations: log-density evaluations (the independence sampler: points; HMC:
             gradient evaluations of all chains at once).
-        timings: seconds: ``fit``, ``compile``, ``warmup``, ``sampling``, ``total``.
+        timings: seconds: ``fit`` (a given ``fit_result``'s own time), ``compile``,
+            ``warmup``, ``sampling``, ``total`` (the fit included).
         fit: the least-squares `FitResult` the chains started from (None for a toy oracle).
         log_density: ``(chains, draws)``.
     """
@@ -779,9 +780,12 @@ def sample_posterior(
             scene, observations, names, initial=initial, starts=starts, progress=progress,
             method=method,
         )  # fmt: skip
+        t_fit = time.perf_counter() - t_start
     elif tuple(fit_result.params) != names:
         raise FitError(f"fit_result fits {fit_result.params}, not {names}")
-    t_fit = time.perf_counter() - t_start
+    else:  # fitted before this call: its own time, counted in the total too
+        t_fit = float(fit_result.timings.get("total", 0.0))
+        t_start -= t_fit
     objective = fit_result.objective
     theta = fit_result.theta
     _check_inside_priors(names, theta, prior_map)
