@@ -196,9 +196,9 @@ def report(results, n, repeats, info):
             "its chunk's slowest). Every program prefers 512-bit vectors (XLA:CPU's default is "
             "256 bits where the CPU has 512). With loop kernels the compiled program holds "
             f"{kernels_text(results)} loops compiled as single kernels "
-            "(`xla_cpu_small_call`): the step loop and the event's root find, and in float32 "
-            "the pool's tail loop too (lanes refilled as impacts finish); the rest of the "
-            "program (chunks, refills, outputs) runs as XLA's usual kernels.\n",
+            "(`xla_cpu_small_call`; among them the step loop, the event's root find and, in "
+            "float32, the pool's tail loop, where lanes are refilled as impacts finish); the "
+            "rest of the program (chunks, refills, outputs) runs as XLA's usual kernels.\n",
             table(
                 [
                     "precision",
