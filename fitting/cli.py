@@ -113,10 +113,11 @@ def _add_posterior_options(p) -> None:
     g.add_argument("--warmup", type=int, default=300, help="warm-up steps per chain (default 300)")
     g.add_argument(
         "--sampler",
-        choices=("auto", "independence", "hmc"),
+        choices=("auto", "independence", "hmc", "smc"),
         default="auto",
         help="auto (default): independence Metropolis on a proposal fitted to the posterior, "
-        "HMC where that proposal misses part of it; or force either",
+        "HMC where that proposal misses part of it; or force either; smc: tempered sequential "
+        "Monte Carlo from the prior and the fit (opt-in, docs/posterior.md)",
     )
     g.add_argument("--draws", metavar="FILE.nc", help="write the draws (ArviZ InferenceData)")
     g.add_argument("--corner", metavar="FILE.png", help="corner plot of the draws")

@@ -35,7 +35,10 @@ from jaximpact._engine.devices import engine_jit
 from .._least_squares.fit import FitResult, fit
 from .._least_squares.objective import FitError, Objective, check_names
 from .._least_squares.transforms import dphys_du, to_physical, to_unbounded
+from . import diagnostics
 from .priors import Prior, priors_for
+from .smc import Reference, SMCRun, run_smc
+from .space import SamplingSpace
 
 __all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
 
@@ -59,7 +62,9 @@ NOISE_FACTOR_RANGE = (1e-3, 1e3)
 #: Samplers: the independence sampler (default, values only: every proposal of every chain
 #: evaluated in a few large batches) and HMC (gradients; for posteriors the independence
 #: proposal cannot cover). ``auto``: the independence sampler, HMC where its Pareto k > 0.7.
-SAMPLERS = ("auto", "independence", "hmc")
+#: ``smc``: tempered sequential Monte Carlo (``_smc``; opt-in until its validation against grid
+#: posteriors is finished: docs/open_points.md).
+SAMPLERS = ("auto", "independence", "hmc", "smc")
 #: Largest Pareto shape of the importance weights at which the independence sampler's
 #: proposal is trusted (Vehtari et al. 2024, "Pareto smoothed importance sampling").
 MAX_KHAT = 0.7
@@ -135,6 +140,10 @@ class PosteriorResult:
     noise_groups: np.ndarray | None = field(default=None, repr=False)
     sampler: str = "hmc"
     khat: float = math.nan
+    #: SMC: tempering steps per population, and the mean over populations of the log
+    #: marginal likelihood's estimate (up to the likelihood's constant terms).
+    stages: np.ndarray | None = None
+    log_evidence: float = math.nan
 
     @property
     def chains(self) -> int:
@@ -398,11 +407,18 @@ def _sample(
     z0=None,
     sampler="auto",
     batch_log_density=None,
+    smc_batch=None,
 ) -> PosteriorResult:
     """The sampler on any residual function ``u -> r`` (JAX, differentiable): the path of
     :func:`sample_posterior`, open to a toy problem with a known posterior.
     ``batch_log_density``: ``Z (n, d) -> (n,)``, the independence sampler's (default: the
     log density ``vmap``-ed)."""
+    if sampler == "smc":
+        return _sample_smc(
+            residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center,
+            likelihood=likelihood, nu=nu, chains=chains, draws=draws, seed=seed,
+            progress=progress, batch=smc_batch,
+        )  # fmt: skip
     p, k = len(names), len(noise)
     starts_given = z0 is not None  # chains placed by hand: HMC from there
     log_density = _log_density(residuals, names, priors, np.asarray(groups), k, likelihood, nu)
@@ -816,6 +832,11 @@ def sample_posterior(
         batch_log_density=_batch_log_density(
             sampled, names, prior_map, groups, len(noise), likelihood, nu
         ),
+        smc_batch=_x_batch_log_density(
+            sampled, SamplingSpace(names, noise, prior_map), groups, likelihood, nu
+        )
+        if sampler == "smc"
+        else None,
     )
     result.fit = fit_result
     result.program = _model_values(sampled, names)
@@ -889,3 +910,367 @@ def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
     else:
         e = rng.standard_t(result.nu, model.shape)
     return model, model + e * factor * objective.scale
+
+
+# -- sequential Monte Carlo (sampler="smc") -------------------------------------------------
+
+#: SMC's reference: a Student-t with REFERENCE_NU degrees of freedom on the fit, its standard
+#: deviations REFERENCE_WIDTH times the fit's (at most the prior's), mixed with the prior
+#: (share PRIOR_SHARE).
+REFERENCE_NU = 4.0
+REFERENCE_WIDTH = 1.3
+PRIOR_SHARE = 0.05
+#: SMC: a run is called converged only with every bulk and tail ESS at least MIN_ESS and every
+#: rank-normalized R-hat (over the independent populations) at most MAX_RHAT; while either
+#: fails, ``chains`` more populations are run, up to SMC_EXTENSIONS times.
+MIN_ESS = 400
+SMC_EXTENSIONS = 2
+
+
+def _log_likelihood(groups, n_noise, likelihood, nu):
+    """``(r, log noise factors) -> log likelihood`` (up to a constant)."""
+    # Rows with a sigma use factor 1 (index n_noise, a fixed 0 appended to the log factors).
+    index = jnp.asarray(np.where(groups >= 0, groups, n_noise))
+
+    def log_likelihood(r, log_s):
+        log_scale = jnp.concatenate([log_s, jnp.zeros(1, r.dtype)])[index]
+        x = r * jnp.exp(-log_scale)
+        if likelihood == "gaussian":
+            ll = -0.5 * x**2 - log_scale
+        else:
+            ll = -0.5 * (nu + 1) * jnp.log1p(x**2 / nu) - log_scale
+        return jnp.sum(ll)
+
+    return log_likelihood
+
+
+def _x_log_density(residuals, space: SamplingSpace, groups, likelihood, nu):
+    """``x -> log posterior`` (up to a constant) from ``residuals: u -> r`` (JAX)."""
+    log_likelihood = _log_likelihood(np.asarray(groups), len(space.noise), likelihood, nu)
+
+    def log_density(x):
+        u, log_s = space.to_u(x)
+        return space.log_prior(x) + log_likelihood(residuals(u), log_s)
+
+    return log_density
+
+
+def _x_batch_log_density(objective: Objective, space: SamplingSpace, groups, likelihood, nu):
+    """``X (n, d) -> log posterior (n,)``: every row's impacts in one simulation (a flat
+    batch of ``n x impacts`` lanes; the simulator under ``vmap`` costs 2-3x that), one
+    compiled program. (The simulator called on its own, outside this program, runs about 1.7x
+    faster with ``use_all_cpu_cores`` but compiles in 35 s instead of 9 s on 2 cores: the
+    wrong trade for a posterior's first call.)"""
+    names, p = space.names, len(space.names)
+    value, scale = objective._value, objective._scale
+    log_likelihood = _log_likelihood(np.asarray(groups), len(space.noise), likelihood, nu)
+
+    def log_density(X):
+        def prepare(x):
+            u, log_s = space.to_u(x)
+            return to_physical(names, u), log_s, space.log_prior(x)
+
+        theta, log_s, log_prior = jax.vmap(prepare)(X)
+        result = objective._simulate_impl(tuple(theta[:, i : i + 1] for i in range(p)))
+
+        def one(result, th, ls, lp):
+            r = objective.residuals_from_result(result, objective.hertz_time(th), value, scale)
+            return lp + log_likelihood(r, ls)
+
+        return jax.vmap(one)(result, theta, log_s, log_prior)
+
+    return engine_jit(log_density)
+
+
+def _blocks(log_density, block):
+    """``X (n, d) -> (n,)`` numpy, ``block`` rows per call of ``log_density`` (one compiled
+    shape: the last block is padded with copies of its first row)."""
+
+    def evaluate(X):
+        X = np.asarray(X, float)
+        out = []
+        for i in range(0, len(X), block):
+            part = X[i : i + block]
+            pad = block - len(part)
+            if pad:
+                part = np.concatenate([part, np.repeat(part[:1], pad, axis=0)])
+            out.append(np.asarray(log_density(jnp.asarray(part)))[: block - pad])
+        return np.concatenate(out) if out else np.zeros(0)
+
+    return evaluate
+
+
+def _smc_summary(x: np.ndarray) -> dict:
+    """Summary of one quantity's draws ``x (chains, draws)``."""
+    flat = x.reshape(-1)
+    q05, median, q95 = np.quantile(flat, [0.05, 0.5, 0.95])
+    return {
+        "mean": float(np.mean(flat)),
+        "median": float(median),
+        "sd": float(np.std(flat, ddof=1)),
+        "q05": float(q05),
+        "q95": float(q95),
+        "rhat": diagnostics.rank_rhat(x),
+        "ess": diagnostics.ess_bulk(x),
+        "ess_tail": diagnostics.ess_tail(x),
+    }
+
+
+def _smc_problems(summary: Mapping[str, dict], divergences: int = 0) -> list[str]:
+    """Why a run cannot be called good (empty if it can): a rank-normalized R-hat above
+    :data:`MAX_RHAT` (or undefined), a bulk or tail ESS below :data:`MIN_ESS`, or a divergent
+    HMC transition."""
+    problems = []
+    rhat = {n: s["rhat"] for n, s in summary.items()}
+    bad = [n for n, r in rhat.items() if not r <= MAX_RHAT]
+    if bad:
+        worst = max(bad, key=lambda n: math.inf if not math.isfinite(rhat[n]) else rhat[n])
+        problems.append(
+            f"R-hat of {worst} is {rhat[worst]:.4f} > {MAX_RHAT} (rank-normalized, bulk and "
+            "tails: the chains or populations disagree; a part of the posterior may be missed)"
+        )
+    ess = {n: min(s["ess"], s.get("ess_tail", s["ess"])) for n, s in summary.items()}
+    low = [n for n, e in ess.items() if not e >= MIN_ESS]
+    if low:
+        worst = min(low, key=lambda n: ess[n] if math.isfinite(ess[n]) else -math.inf)
+        problems.append(
+            f"effective sample size of {worst} is {ess[worst]:.0f} < {MIN_ESS} (bulk or "
+            "tails): too few independent draws for its quantiles"
+        )
+    if divergences:
+        problems.append(
+            f"{divergences} divergent transition(s) after warm-up (the sampler could not "
+            "follow the posterior's curvature there; the draws may be biased)"
+        )
+    return problems
+
+
+def _x_judged(space: SamplingSpace, z):
+    """The physical parameters and noise factors of draws ``z`` ``(..., d)`` in ``x``: what
+    the summary and the convergence rules are about."""
+    flat = jnp.asarray(np.asarray(z).reshape(-1, space.dim))
+    p = len(space.names)
+
+    def one(x):
+        u, log_s = space.to_u(x)
+        return jnp.concatenate([to_physical(space.names, u) if p else u, jnp.exp(log_s)])
+
+    out = np.asarray(jax.jit(jax.vmap(one))(flat))
+    return out.reshape(*np.shape(z)[:-1], space.dim)
+
+
+def _reference(space: SamplingSpace, theta, cov_u, log_noise, groups) -> Reference:
+    """The defensive reference in ``x``: a t on the least-squares optimum, its covariance
+    carried from ``u`` into ``x`` and widened by :data:`REFERENCE_WIDTH` (a coordinate whose
+    fitted variance is not finite, or wider than its prior, gets the prior's and no
+    correlation), mixed with the prior."""
+    p, d = len(space.names), space.dim
+    center = space.from_physical(theta, log_noise)
+    dpdu = dphys_du(space.names, theta) if p else np.zeros(0)
+    dlog_du = np.concatenate([dpdu / np.asarray(theta, float), np.ones(d - p)])
+    scale = np.array(
+        [
+            space.dx_dlog(center)[i] * dlog_du[i] if space._box(i) is not None else 1.0
+            for i in range(d)
+        ]
+    )
+    cov = np.zeros((d, d))
+    cov[:p, :p] = np.asarray(cov_u, float)
+    for j in range(d - p):  # log of a fitted noise factor: variance about 1 / (2 n_k)
+        cov[p + j, p + j] = 0.5 / max(int(np.sum(np.asarray(groups) == j)), 1)
+    cov = cov * np.outer(scale, scale)
+    limit = space.prior_sd() ** 2
+    var = np.diag(cov).copy()
+    for i in range(d):
+        if not (np.isfinite(var[i]) and 0 < var[i] <= limit[i]) or not np.all(
+            np.isfinite(cov[i])
+        ):
+            cov[i, :] = cov[:, i] = 0.0
+            cov[i, i] = limit[i]
+    cov = REFERENCE_WIDTH**2 * cov + 1e-10 * np.eye(d)
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        cov = np.diag(np.diag(cov))
+    return Reference(
+        center, cov, REFERENCE_NU, space.sample_prior, space.log_prior_normalized, PRIOR_SHARE
+    )
+
+
+def _run_smc_extended(evaluate, reference, space, *, chains, draws, rng, progress):
+    """SMC with ``chains`` populations of ``draws`` particles, extended by ``chains`` more
+    populations (up to :data:`EXTENSIONS` times) while an R-hat or ESS fails."""
+    desc = f"posterior (SMC, {chains} populations x {draws})"
+    runs = [run_smc(evaluate, reference, populations=chains, particles=draws, rng=rng,
+                    progress=progress, description=desc)]  # fmt: skip
+    for _ in range(SMC_EXTENSIONS):
+        merged = _merge_runs(runs)
+        judged = _x_judged(space, merged.draws)
+        summary = {i: _smc_summary(judged[..., i]) for i in range(space.dim)}
+        if not _smc_problems(summary):
+            break
+        runs.append(
+            run_smc(evaluate, reference, populations=chains, particles=draws, rng=rng,
+                    progress=progress, description=desc + ", extended")
+        )  # fmt: skip
+    return _merge_runs(runs)
+
+
+def _merge_runs(runs: list[SMCRun]) -> SMCRun:
+    if len(runs) == 1:
+        return runs[0]
+    cat = lambda name: np.concatenate([getattr(r, name) for r in runs])  # noqa: E731
+    total = sum(r.moves.sum() for r in runs)
+    return SMCRun(
+        draws=cat("draws"),
+        log_density=cat("log_density"),
+        stages=cat("stages"),
+        moves=cat("moves"),
+        acceptance=float(sum(r.acceptance * r.moves.sum() for r in runs) / max(total, 1)),
+        correlation=cat("correlation"),
+        khat=max(r.khat for r in runs),
+        log_evidence=cat("log_evidence"),
+        evaluations=sum(r.evaluations for r in runs),
+        seconds=sum(r.seconds for r in runs),
+        problems=[p for r in runs for p in r.problems],
+    )
+
+
+def posterior_setup(
+    fit_result: FitResult,
+    priors: Mapping[str, object] | None = None,
+    likelihood: str = "gaussian",
+    nu: float = 4.0,
+    rtol: float | None = SAMPLING_RTOL,
+):
+    """The posterior that :func:`sample_posterior` samples, for a fit's data and parameters:
+    ``(space, batch log density X (n, d) -> (n,) in the sampler's coordinates, the objective
+    at the sampling tolerance, noise groups)``. The grid reference of the benchmarks and tests
+    evaluates exactly this density."""
+    objective = fit_result.objective
+    names = tuple(fit_result.params)
+    prior_map = priors_for(names, priors, objective.scene.priors)
+    groups, noise = _noise_groups(objective)
+    space = SamplingSpace(names, noise, prior_map)
+    sampled = _at_tolerance(objective, rtol)
+    batch = _x_batch_log_density(sampled, space, groups, likelihood, nu)
+    return space, batch, sampled, groups
+
+
+def grid_reference(
+    fit_result: FitResult,
+    priors: Mapping[str, object] | None = None,
+    *,
+    likelihood: str = "gaussian",
+    nu: float = 4.0,
+    points: int = 40,
+    half_width: float = 8.0,
+    rtol: float | None = SAMPLING_RTOL,
+    progress: bool = False,
+) -> dict:
+    """The exact posterior of :func:`sample_posterior` on a grid, as a yardstick for samplers
+    (1-3 parameters, data with sigmas: no noise factors).
+
+    The grid lies in the fit's whitened coordinates ``g`` (``x = centre + L g``, ``L`` the
+    Cholesky factor of the fit's covariance carried into the sampler's coordinates ``x``, a
+    parameter the data leave open at its prior's width), over ``|g| <= half_width``, refined
+    once to where the mass is (``_grid``). A grid along the parameters' own axes cannot
+    resolve a ridge thinner than its cells (a C_A-f0 ridge 70x thinner than long is common);
+    along the ridge's axes it can. Where more than 1e-6 of the mass lies on the box's faces the
+    box is doubled (up to twice). The physical values' mean, sd and 5/50/95 % quantiles come
+    from the cells as weighted points.
+
+    Returns ``{name: {mean, sd, q05, median, q95}}`` plus ``"_grid"`` (the `GridPosterior`
+    in ``g``) and ``"_face_mass"`` (the mass on the box's faces).
+    """
+    from .grid import grid_posterior
+
+    space, batch, _, groups = posterior_setup(fit_result, priors, likelihood, nu, rtol)
+    if space.noise:
+        raise FitError("grid_reference needs sigmas for every datum (no noise factors)")
+    names = space.names
+    theta = np.asarray(fit_result.theta, float)
+    dpdu = dphys_du(names, theta)
+    cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
+    reference = _reference(space, theta, cov_u, [], groups)
+    centre, chol = reference.mean, np.linalg.cholesky(reference.cov / REFERENCE_WIDTH**2)
+    evaluate = _blocks(batch, BLOCK)
+    d = space.dim
+    for _ in range(3):
+        grid = grid_posterior(
+            lambda G: evaluate(centre + G @ chol.T), [-half_width] * d, [half_width] * d,
+            names=names, points=points, block=BLOCK, progress=progress,
+        )  # fmt: skip
+        face = _face_mass(grid, half_width)
+        if face <= 1e-6:
+            break
+        half_width *= 2
+    mesh = np.stack(np.meshgrid(*grid.axes, indexing="ij"), axis=-1).reshape(-1, d)
+    values = _x_judged(space, centre + mesh @ chol.T)
+    weight = grid.mass.reshape(-1)
+    out = {"_grid": grid, "_face_mass": face}
+    for i, name in enumerate(names):
+        v = values[:, i]
+        mean = float(weight @ v)
+        order = np.argsort(v)
+        cdf = np.cumsum(weight[order]) - 0.5 * weight[order]
+        q05, median, q95 = np.interp([0.05, 0.5, 0.95], cdf, v[order])
+        out[name] = {
+            "mean": mean,
+            "sd": float(np.sqrt(weight @ (v - mean) ** 2)),
+            "q05": float(q05),
+            "median": float(median),
+            "q95": float(q95),
+        }
+    return out
+
+
+def _face_mass(grid, half_width) -> float:
+    """Mass of the cells on the faces of the box ``|g| <= half_width`` (after refinement, only
+    faces that are still at the box's edge count)."""
+    mass = grid.mass
+    total = 0.0
+    for i, axis in enumerate(grid.axes):
+        h = axis[1] - axis[0]
+        for end, index in ((-half_width, 0), (half_width, -1)):
+            if abs(axis[index] - end) < h:
+                total += float(np.take(mass, index, axis=i).sum())
+    return total
+
+
+def _sample_smc(
+    residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center, *, likelihood,
+    nu, chains, draws, seed, progress, batch=None,
+) -> PosteriorResult:  # fmt: skip
+    """``sampler="smc"``: tempered SMC in the coordinates of ``_space``, judged by the
+    rank-normalized R-hat over its independent populations, bulk and tail ESS and the
+    particles' decorrelation (``batch``: ``X (n, d) -> (n,)``; default the log density
+    ``vmap``-ed)."""
+    space = SamplingSpace(tuple(names), tuple(noise), dict(priors))
+    if batch is None:
+        batch = engine_jit(jax.vmap(_x_log_density(residuals, space, groups, likelihood, nu)))
+    theta = np.asarray(to_physical(names, jnp.asarray(u_center)), float)
+    reference = _reference(space, theta, cov_u, log_noise_center, groups)
+    rng = np.random.default_rng(seed)
+    run = _run_smc_extended(
+        _blocks(batch, BLOCK), reference, space, chains=chains, draws=draws, rng=rng,
+        progress=progress,
+    )  # fmt: skip
+    to_z = jax.jit(jax.vmap(lambda x: jnp.concatenate(space.to_u(x))))
+    z = np.asarray(to_z(jnp.asarray(run.draws.reshape(-1, space.dim)))).reshape(run.draws.shape)
+    shape = run.log_density.shape
+    result = _posterior_result(
+        names, noise, priors, likelihood, nu, shape[0], z, run.log_density, np.zeros(shape, bool),
+        np.full(shape, run.acceptance), math.nan, run.evaluations, 0.0, run.seconds, "smc",
+        run.khat,
+    )  # fmt: skip
+    judged = np.concatenate([result.draws, result.noise_draws], axis=-1)
+    summary = {n: _smc_summary(judged[..., i]) for i, n in enumerate(result.params + result.noise)}
+    for n, stats in summary.items():
+        result.summary[n].update(rhat=stats["rhat"], ess=stats["ess"], ess_tail=stats["ess_tail"])
+    result.problems = _smc_problems(summary) + run.problems
+    result.converged = not result.problems
+    result.status = "converged" if result.converged else "not converged"
+    result.stages = run.stages
+    result.log_evidence = float(np.mean(run.log_evidence))
+    return result

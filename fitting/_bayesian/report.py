@@ -47,7 +47,11 @@ def posterior_fields(result: PosteriorResult) -> dict:
     }
 
 
-_SAMPLER_NAMES = {"independence": "independence Metropolis", "hmc": "HMC"}
+_SAMPLER_NAMES = {
+    "independence": "independence Metropolis",
+    "hmc": "HMC",
+    "smc": "sequential Monte Carlo",
+}
 
 
 def _stats(s: dict) -> dict:
@@ -88,6 +92,11 @@ def posterior_summary(result: PosteriorResult) -> str:
             lines.append(f"  {n.ljust(width)} " + " ".join(f"{c:+.3f}" for c in row))
     if result.sampler == "independence":
         how = f"Pareto k {result.khat:.2f}; {result.evaluations} log-density evaluations"
+    elif result.sampler == "smc":
+        how = (
+            f"{result.chains} independent populations, up to {int(np.max(result.stages))} "
+            f"tempering steps; {result.evaluations} log-density evaluations"
+        )
     else:
         how = f"divergences {result.divergences}; {result.evaluations} gradient evaluations"
     lines.append(

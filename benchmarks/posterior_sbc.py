@@ -1,0 +1,177 @@
+"""Simulation-based calibration of `fitting.sample_posterior` (Talts et al. 2018).
+
+For each replication: parameters drawn from the prior, data drawn from the model (cor_n of
+the Table 1 sphere plus Gaussian noise of sigma 0.003; an impact the model captures gives its
+continued cor_n, the likelihood's own model of it), the posterior sampled as a user would
+(least-squares fit from the prior's centre, then the default sampler), and the rank of each
+true parameter among L = 99 posterior draws picked at random. If the sampler is right, every
+rank is uniform on 0..99: the benchmark tests it by chi-square over 10 bins per parameter and
+plots the histograms with the 99 % band of a uniform.
+
+Designs: ``weak``: 6 normal impacts, 0.6-8 m/s (C_A and f0 weakly determined, a ridge);
+``well``: 12 impacts, 0.3-5 m/s at 0, 30, 45 and 60 degrees.
+
+Run: ``python benchmarks/posterior_sbc.py --design weak --replications 200 --out sbc_weak.jsonl``
+(appends; a rerun continues where the file stops), then ``--report sbc_weak.jsonl
+sbc_well.jsonl`` for the table and the figure ``benchmarks/figures/posterior_sbc.png``.
+"""
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jaximpact
+
+jaximpact.use_all_cpu_cores()
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+import fitting  # noqa: E402
+
+NAMES = ("C_A", "C_H", "f0")
+#: The calibration's prior (log-uniform; SI): a factor ~4 either side of Table 1's values.
+PRIOR = {"C_A": (0.2, 3.0), "C_H": (0.06, 1.0), "f0": (75.0, 1200.0)}
+SIGMA = 0.003
+RANKS = 99  # draws per rank: ranks 0..99
+BINS = 10
+DESIGNS = {
+    "weak": (np.geomspace(0.6, 8.0, 6), np.zeros(6)),
+    "well": (np.geomspace(0.3, 5.0, 12), np.tile([0.0, 30.0, 45.0, 60.0], 3)),
+}
+
+
+def _priors():
+    return {n: f"loguniform:{lo}:{hi}" for n, (lo, hi) in PRIOR.items()}
+
+
+def _write(path, speed, angle, values):
+    rows = ["speed,angle_deg,observable,value,sigma"]
+    rows += [
+        f"{float(s)!r},{float(a)!r},cor_n,{float(v)!r},{SIGMA}"
+        for s, a, v in zip(speed, angle, values, strict=True)
+    ]
+    Path(path).write_text("\n".join(rows) + "\n")
+
+
+def replication(folder, design, seed, draws):
+    """One calibration replication: the truth, its ranks and the run's diagnostics."""
+    rng = np.random.default_rng(seed)
+    truth = {n: float(math.exp(rng.uniform(math.log(lo), math.log(hi)))) for n, (lo, hi) in
+             PRIOR.items()}  # fmt: skip
+    speed, angle = DESIGNS[design]
+    data = folder / f"{design}_{seed}.csv"
+    _write(data, speed, angle, np.full(speed.size, 0.5))
+    objective = fitting.Objective(jaximpact.table1_scene(), data, NAMES)
+    # the model's cor_n, continued below zero where it captures (as the likelihood sees it)
+    residuals = objective.residuals([truth[n] for n in NAMES])
+    clean = 0.5 + SIGMA * np.asarray(residuals)
+    _write(data, speed, angle, clean + SIGMA * rng.standard_normal(speed.size))
+    centre = {n: math.sqrt(lo * hi) for n, (lo, hi) in PRIOR.items()}
+    t0 = time.perf_counter()
+    post = fitting.sample_posterior(
+        jaximpact.table1_scene(), data, NAMES, priors=_priors(), initial=centre, starts=1,
+        draws=draws, seed=seed, progress=False,
+    )  # fmt: skip
+    wall = time.perf_counter() - t0
+    flat = post.draws.reshape(-1, len(NAMES))
+    pick = rng.choice(len(flat), RANKS, replace=False)
+    ranks = {n: int(np.sum(flat[pick, i] < truth[n])) for i, n in enumerate(NAMES)}
+    return {
+        "design": design,
+        "seed": seed,
+        "truth": truth,
+        "ranks": ranks,
+        "captured": int(np.sum(clean < 0)),
+        "converged": bool(post.converged),
+        "problems": post.problems,
+        "fit_status": post.fit.status,
+        "rhat": max(post.summary[n]["rhat"] for n in NAMES),
+        "ess": min(min(post.summary[n]["ess"], post.summary[n]["ess_tail"]) for n in NAMES),
+        "evaluations": post.evaluations,
+        "wall_s": wall,
+    }
+
+
+def chi_square(ranks):
+    """p-value of the chi-square test of uniform ranks 0..RANKS over BINS equal bins."""
+    from scipy.stats import chi2
+
+    counts = np.bincount(np.asarray(ranks) * BINS // (RANKS + 1), minlength=BINS)
+    expected = len(ranks) / BINS
+    stat = float(np.sum((counts - expected) ** 2 / expected))
+    return float(chi2.sf(stat, BINS - 1)), counts
+
+
+def report(paths, figure):
+    rows = [json.loads(line) for p in paths for line in Path(p).read_text().splitlines() if line]
+    designs = sorted({r["design"] for r in rows}, key=list(DESIGNS).index)
+    print("| design | replications | converged | captured impacts | median s | "
+          + " | ".join(f"p({n})" for n in NAMES) + " |")  # fmt: skip
+    print("|---" * (5 + len(NAMES)) + "|")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy.stats import binom
+
+    fig, axes = plt.subplots(len(designs), len(NAMES), figsize=(10, 3 * len(designs)),
+                             squeeze=False)  # fmt: skip
+    for row, design in enumerate(designs):
+        reps = [r for r in rows if r["design"] == design]
+        ps = {}
+        for col, n in enumerate(NAMES):
+            p, counts = chi_square([r["ranks"][n] for r in reps])
+            ps[n] = p
+            ax = axes[row, col]
+            ax.bar(np.arange(BINS), counts, width=0.9, color="tab:blue")
+            lo, hi = binom.ppf([0.005, 0.995], len(reps), 1 / BINS)
+            ax.axhspan(lo, hi, color="0.85", zorder=0)
+            ax.axhline(len(reps) / BINS, color="0.4", lw=1)
+            ax.set_title(f"{design}: {n} (chi-square p = {p:.2f})", fontsize=9)
+            ax.set_xticks([])
+        conv = sum(r["converged"] for r in reps)
+        cap = sum(r["captured"] > 0 for r in reps)
+        med = float(np.median([r["wall_s"] for r in reps]))
+        print(f"| {design} | {len(reps)} | {conv} | {cap} replications | {med:.1f} | "
+              + " | ".join(f"{ps[n]:.3f}" for n in NAMES) + " |")  # fmt: skip
+    fig.supxlabel("rank of the true value among 99 posterior draws (10 bins); grey: 99 % band")
+    fig.tight_layout()
+    fig.savefig(figure, dpi=110)
+    print(f"figure: {figure}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--design", choices=list(DESIGNS))
+    ap.add_argument("--replications", type=int, default=200)
+    ap.add_argument("--draws", type=int, default=250, help="particles per population (250)")
+    ap.add_argument("--out", help="JSON lines, appended")
+    ap.add_argument("--report", nargs="+", help="JSON lines files: print the table, plot")
+    ap.add_argument(
+        "--figure", default=str(Path(__file__).parent / "figures" / "posterior_sbc.png")
+    )
+    args = ap.parse_args(argv)
+    if args.report:
+        report(args.report, args.figure)
+        return 0
+    out = Path(args.out)
+    done = len(out.read_text().splitlines()) if out.exists() else 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in range(done + 1, args.replications + 1):
+            rep = replication(Path(tmp), args.design, seed, args.draws)
+            with out.open("a") as f:
+                f.write(json.dumps(rep) + "\n")
+            print(json.dumps(rep), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,386 @@
+"""Sequential Monte Carlo: tempering from an overdispersed reference to the posterior.
+
+Every population of particles starts as independent draws of a reference ``q0`` that covers
+the posterior by construction: a mixture of a heavy-tailed Student-t placed by the
+least-squares fit and the prior itself (a "defensive" mixture: the importance weight
+``posterior / q0`` is bounded wherever the prior has mass, so no region of the prior is out of
+reach). The particles then follow the geometric path ``pi_b ~ q0^(1-b) posterior^b`` from
+``b = 0`` to 1 (Del Moral, Doucet & Jasra 2006, "Sequential Monte Carlo samplers"):
+
+1. **reweight**: the next ``b`` is the largest that keeps the effective sample size of the
+   incremental weights ``(posterior / q0)^(db)`` at :data:`TARGET_ESS` of the particles
+   (found by bisection), so that no step loses the particles of a region at once; where the
+   reference already covers the posterior, ``b`` goes to 1 in one step (plain importance
+   sampling);
+2. **resample** (systematic);
+3. **move**: Metropolis-Hastings steps that leave ``pi_b`` invariant, alternately an
+   independence proposal from a kernel density estimate of the population (global moves
+   along curved ridges) and a random walk with the population's covariance (local moves,
+   step scaled toward 30 % acceptance), until each coordinate's correlation between the
+   particles' positions now and at the resampling is below :data:`DECORRELATION` (at
+   ``b = 1``; :data:`STAGE_DECORRELATION` on the way), so that the copies that resampling
+   made of one particle have moved apart (the rule of PyMC's SMC).
+
+Only values of the log density are needed, never gradients, and every move of every particle
+of every population is one batch of evaluations (the simulator's lanes full). The populations
+are independent runs: their disagreement (R-hat over populations) is evidence that a run
+missed part of the posterior, which chains that share one proposal cannot give.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import logsumexp
+from tqdm.auto import tqdm
+
+__all__ = ["Reference", "SMCRun", "run_smc"]
+
+#: Each tempering step keeps this fraction of the particles as effective sample size; the
+#: step to b = 1 may keep FINAL_ESS where its weights' Pareto k is at most FINAL_KHAT (the
+#: importance weights are then reliable: Vehtari et al. 2024), which saves a stage's moves
+#: where the reference already covers the posterior.
+TARGET_ESS = 0.5
+FINAL_ESS = 0.25
+FINAL_KHAT = 0.5
+#: Moves at b = 1 continue until every coordinate's correlation with the positions at the
+#: last resampling is below this; on the way to b = 1, below STAGE_DECORRELATION.
+DECORRELATION = 0.1
+STAGE_DECORRELATION = 0.3
+#: Most moves per stage (a kernel that cannot decorrelate the particles stops here and says so).
+MAX_MOVES = 30
+#: Random-walk steps are scaled toward this acceptance rate.
+RW_ACCEPT = 0.3
+
+
+class Reference:
+    """The defensive mixture ``q0 = (1 - prior_share) t(mean, cov, nu) + prior_share prior``
+    in the sampler's coordinates (``prior_sample(rng, n)``, ``prior_log_density(X)``: the
+    prior's draws and normalized log density there)."""
+
+    def __init__(self, mean, cov, nu, prior_sample, prior_log_density, prior_share):
+        self.mean = np.asarray(mean, float)
+        self.cov = np.asarray(cov, float)
+        self.nu = float(nu)
+        self.chol = np.linalg.cholesky(self.cov)
+        self.prior_sample = prior_sample
+        self.prior_log_density = prior_log_density
+        self.prior_share = float(prior_share)
+
+    def sample(self, rng, n) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` draws and whether each came from the prior component."""
+        from_prior = rng.uniform(size=n) < self.prior_share
+        X = np.empty((n, len(self.mean)))
+        m = int(from_prior.sum())
+        x = rng.standard_normal((n - m, len(self.mean)))
+        g = rng.chisquare(self.nu, (n - m, 1))
+        X[~from_prior] = self.mean + (x @ self.chol.T) / np.sqrt(g / self.nu)
+        if m:
+            X[from_prior] = self.prior_sample(rng, m)
+        return X, from_prior
+
+    def log_density(self, X) -> np.ndarray:
+        X = np.asarray(X, float)
+        d = len(self.mean)
+        y = np.linalg.solve(self.chol, (X - self.mean).T).T
+        log_t = (
+            math.lgamma((self.nu + d) / 2)
+            - math.lgamma(self.nu / 2)
+            - 0.5 * d * math.log(self.nu * math.pi)
+            - np.sum(np.log(np.diag(self.chol)))
+            - 0.5 * (self.nu + d) * np.log1p(np.sum(y * y, axis=1) / self.nu)
+        )
+        if self.prior_share <= 0:
+            return log_t
+        log_prior = self.prior_log_density(X)
+        if self.prior_share >= 1:
+            return log_prior
+        return np.logaddexp(
+            math.log1p(-self.prior_share) + log_t, math.log(self.prior_share) + log_prior
+        )
+
+
+@dataclass
+class SMCRun:
+    """What :func:`run_smc` returns.
+
+    Attributes:
+        draws: ``(populations, particles, d)`` equally weighted draws of the posterior.
+        log_density: ``(populations, particles)`` their log posterior densities.
+        stages: tempering steps of each population (``b`` reaches 1 after that many).
+        moves: Metropolis-Hastings moves of each population (all stages).
+        acceptance: mean acceptance rate of the moves (all populations).
+        correlation: each population's largest correlation with its positions at the last
+            resampling, at the end (below DECORRELATION when the moves mixed).
+        khat: Pareto shape of the last tempering step's weights (Vehtari et al. 2024), the
+            largest over populations: at most FINAL_KHAT where the reference covered the
+            posterior well enough to step to b = 1 with FINAL_ESS.
+        log_evidence: each population's estimate of the log marginal likelihood (up to the
+            likelihood's constant terms).
+        evaluations: log-density evaluations; seconds: wall time.
+        problems: what went wrong (a stage that could not decorrelate the particles).
+    """
+
+    draws: np.ndarray
+    log_density: np.ndarray
+    stages: np.ndarray
+    moves: np.ndarray
+    acceptance: float
+    correlation: np.ndarray
+    khat: float
+    log_evidence: np.ndarray
+    evaluations: int
+    seconds: float
+    problems: list[str] = field(default_factory=list)
+
+
+def _ess(log_w: np.ndarray) -> float:
+    """Kish effective sample size of log weights."""
+    if not np.any(np.isfinite(log_w)):
+        return 0.0
+    w = np.exp(log_w - np.max(log_w))
+    return float(np.sum(w) ** 2 / np.sum(w * w))
+
+
+def _next_beta(beta: float, delta: np.ndarray, n: int) -> float:
+    """The largest ``b' <= 1`` whose incremental weights ``exp((b' - b) delta)`` keep an ESS
+    of at least ``TARGET_ESS n`` (bisection; ``delta = log posterior - log q0``), or 1 where
+    the last step's weights keep FINAL_ESS with a Pareto k of at most FINAL_KHAT."""
+    target = TARGET_ESS * n
+    last = np.where(np.isfinite(delta), (1.0 - beta) * delta, -np.inf)
+    ess = _ess(last)
+    if ess >= target or (ess >= FINAL_ESS * n and _khat(last) <= FINAL_KHAT):
+        return 1.0
+    lo, hi = 0.0, 1.0 - beta
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _ess(mid * delta) >= target else (lo, mid)
+    return beta + max(lo, 1e-12)
+
+
+def _systematic(rng, log_w: np.ndarray, n: int) -> np.ndarray:
+    w = np.exp(log_w - np.max(log_w))
+    cdf = np.cumsum(w / np.sum(w))
+    cdf[-1] = 1.0
+    return np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n)
+
+
+def _khat(log_w: np.ndarray) -> float:
+    from blackjax import pareto_khat
+
+    finite = log_w[np.isfinite(log_w)]
+    if finite.size < 20:
+        return math.inf
+    return float(pareto_khat(np.exp(finite - np.max(finite)), tail="upper"))
+
+
+def _covariance(X: np.ndarray) -> np.ndarray:
+    """The population's covariance, made positive definite (its diagonal, else identity)."""
+    d = X.shape[1]
+    cov = np.atleast_2d(np.cov(X, rowvar=False)) + 1e-12 * np.eye(d)
+    for candidate in (cov, np.diag(np.diag(cov)) + 1e-12 * np.eye(d), np.eye(d) * 1e-4):
+        try:
+            return np.linalg.cholesky(candidate)
+        except np.linalg.LinAlgError:
+            continue
+    return np.eye(d) * 1e-2
+
+
+def _kde_log_density(Y: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Log density (up to one constant shared by all rows) of a mixture of unit Gaussians on
+    ``centres`` at the rows of ``Y`` (both already whitened by the kernel's scale)."""
+    d2 = (
+        np.sum(Y * Y, axis=1)[:, None]
+        + np.sum(centres * centres, axis=1)[None, :]
+        - 2.0 * Y @ centres.T
+    )
+    return logsumexp(-0.5 * np.maximum(d2, 0.0), axis=1)
+
+
+#: The independence proposal: a kernel density estimate of the population (share 1 - WIDE)
+#: mixed with a Student-t (WIDE_NU degrees of freedom) on the population's mean and twice its
+#: standard deviations (share WIDE). The wide part gives the proposal heavier tails than the
+#: target, without which an independence sampler cannot grow a population that is too narrow
+#: (its proposal would never reach the tails it lacks).
+WIDE = 0.25
+WIDE_NU = 3.0
+
+
+def _independence_proposal(rng, X: np.ndarray, chol: np.ndarray):
+    """Draws (one per particle) of the independence proposal on population ``X`` (``chol``:
+    the Cholesky factor of its covariance), and its log density ``Y -> (n,)``."""
+    n, d = X.shape
+    h = (4.0 / (d + 2)) ** (1 / (d + 4)) * n ** (-1 / (d + 4))  # Silverman's bandwidth
+    mean = X.mean(axis=0)
+    wide = rng.uniform(size=n) < WIDE
+    Z = rng.standard_normal((n, d))
+    Xp = X[rng.integers(n, size=n)] + h * Z @ chol.T
+    g = rng.chisquare(WIDE_NU, (n, 1))
+    Xp[wide] = (mean + 2.0 * (Z @ chol.T) / np.sqrt(g / WIDE_NU))[wide]
+    centres = np.linalg.solve(chol, X.T).T / h
+    log_det = float(np.sum(np.log(np.diag(chol))))
+
+    def log_q(Y):
+        W = np.linalg.solve(chol, Y.T).T
+        kde = (
+            _kde_log_density(W / h, centres)
+            - math.log(n)
+            - d * math.log(h)
+            - 0.5 * d * math.log(2 * math.pi)
+        )
+        y2 = np.sum(((W - np.linalg.solve(chol, mean)) / 2.0) ** 2, axis=1)
+        t = (
+            math.lgamma((WIDE_NU + d) / 2)
+            - math.lgamma(WIDE_NU / 2)
+            - 0.5 * d * math.log(WIDE_NU * math.pi)
+            - d * math.log(2.0)
+            - 0.5 * (WIDE_NU + d) * np.log1p(y2 / WIDE_NU)
+        )
+        return np.logaddexp(math.log1p(-WIDE) + kde, math.log(WIDE) + t) - log_det
+
+    return Xp, log_q
+
+
+def _correlation(anchor: np.ndarray, X: np.ndarray) -> float:
+    """Largest correlation over coordinates between positions ``anchor`` and ``X`` (1 where a
+    coordinate does not vary: nothing moved)."""
+    worst = 0.0
+    for j in range(X.shape[1]):
+        a, b = anchor[:, j], X[:, j]
+        sa, sb = np.std(a), np.std(b)
+        if sa == 0 or sb == 0:
+            return 1.0
+        worst = max(worst, abs(float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb))))
+    return worst
+
+
+def run_smc(
+    evaluate: Callable[[np.ndarray], np.ndarray],
+    reference: Reference,
+    *,
+    populations: int,
+    particles: int,
+    rng: np.random.Generator,
+    progress: bool = False,
+    description: str = "posterior (SMC)",
+) -> SMCRun:
+    """Independent SMC runs (``populations`` of ``particles`` each) of the posterior whose
+    log density ``evaluate(X (n, d)) -> (n,)`` gives (up to a constant; ``-inf`` or NaN where
+    it is zero), from ``reference``; all populations' evaluations are one call per move."""
+    t0 = time.perf_counter()
+    K, N = populations, particles
+    d = len(reference.mean)
+    bar = tqdm(
+        desc=description, unit="point", disable=not progress, file=sys.stderr, leave=False
+    )
+    evaluations = 0
+
+    def run(X):
+        nonlocal evaluations
+        lp = np.nan_to_num(np.asarray(evaluate(X), float), nan=-np.inf)
+        evaluations += len(X)
+        bar.update(len(X))
+        return lp
+
+    X, from_prior = reference.sample(rng, K * N)
+    # The prior component's draws reach stiff corners of the prior whose impacts take many
+    # steps; evaluated apart, they do not hold up the batches of the rest.
+    order = np.argsort(from_prior, kind="stable")
+    lp_flat = np.empty(K * N)
+    lp_flat[order] = run(X[order])
+    X = X.reshape(K, N, d)
+    lp = lp_flat.reshape(K, N)
+    lq = np.array(reference.log_density(X.reshape(-1, d)), float).reshape(K, N)
+    if not np.any(np.isfinite(lp)):
+        bar.close()
+        raise ValueError("the log posterior is -inf or NaN at every draw of the reference")
+
+    beta = np.zeros(K)
+    stages = np.zeros(K, int)
+    moves = np.zeros(K, int)
+    log_evidence = np.zeros(K)
+    anchor = X.copy()
+    moved = np.zeros(K, int)  # moves since the last resampling
+    reweight = np.ones(K, bool)
+    finished = np.zeros(K, bool)
+    rw_scale = np.full(K, 2.38 / math.sqrt(d))
+    correlation = np.ones(K)
+    accepted = total = 0
+    khat = 0.0
+    stuck: list[str] = []
+
+    while not np.all(finished):
+        active = np.flatnonzero(~finished)
+        for k in active:
+            if not reweight[k]:
+                continue
+            delta = lp[k] - lq[k]
+            new = _next_beta(beta[k], delta, N)
+            log_w = (new - beta[k]) * delta
+            log_w = np.where(np.isfinite(log_w), log_w, -np.inf)
+            log_evidence[k] += logsumexp(log_w) - math.log(N)
+            if new >= 1.0:
+                khat = max(khat, _khat(log_w))
+            pick = _systematic(rng, log_w, N)
+            X[k], lp[k], lq[k] = X[k][pick], lp[k][pick], lq[k][pick]
+            beta[k], stages[k] = new, stages[k] + 1
+            anchor[k], moved[k], reweight[k] = X[k].copy(), 0, False
+
+        # One move of every active population: proposals, one batch of evaluations.
+        proposals, log_ratio = [], []
+        for k in active:
+            chol = _covariance(X[k])
+            if moved[k] % 2 == 0:  # independence proposal (see _independence_proposal)
+                Xp, log_q = _independence_proposal(rng, X[k], chol)
+                log_ratio.append(log_q(X[k]) - log_q(Xp))
+            else:  # random walk
+                Xp = X[k] + rw_scale[k] * rng.standard_normal((N, d)) @ chol.T
+                log_ratio.append(np.zeros(N))
+            proposals.append(Xp)
+        lp_new = run(np.concatenate(proposals)).reshape(len(active), N)
+        for i, k in enumerate(active):
+            Xp = proposals[i]
+            lq_new = np.array(reference.log_density(Xp), float)
+            log_alpha = beta[k] * (lp_new[i] - lp[k]) + (1 - beta[k]) * (lq_new - lq[k])
+            log_alpha = np.where(np.isfinite(lp_new[i]), log_alpha + log_ratio[i], -np.inf)
+            take = np.log(rng.uniform(size=N)) < log_alpha
+            X[k][take], lp[k][take], lq[k][take] = Xp[take], lp_new[i][take], lq_new[take]
+            rate = float(np.mean(take))
+            accepted, total = accepted + int(take.sum()), total + N
+            if moved[k] % 2 == 1:
+                rw_scale[k] = float(np.clip(rw_scale[k] * math.exp(rate - RW_ACCEPT), 0.02, 5.0))
+            moved[k] += 1
+            moves[k] += 1
+            correlation[k] = _correlation(anchor[k], X[k])
+            limit = DECORRELATION if beta[k] >= 1.0 else STAGE_DECORRELATION
+            if correlation[k] < limit or moved[k] >= MAX_MOVES:
+                if correlation[k] >= limit and beta[k] >= 1.0:
+                    stuck.append(
+                        f"population {k + 1}: the moves left a correlation of "
+                        f"{correlation[k]:.2f} with their positions at the last resampling "
+                        f"after {MAX_MOVES} moves (the copies it made have not moved apart)"
+                    )
+                if beta[k] >= 1.0:
+                    finished[k] = True
+                else:
+                    reweight[k] = True
+        bar.set_postfix(b=f"{np.min(beta):.3g}", refresh=False)
+    bar.close()
+    return SMCRun(
+        draws=X,
+        log_density=lp,
+        stages=stages,
+        moves=moves,
+        acceptance=accepted / max(total, 1),
+        correlation=correlation,
+        khat=khat,
+        log_evidence=log_evidence,
+        evaluations=evaluations,
+        seconds=time.perf_counter() - t0,
+        problems=stuck,
+    )
