@@ -93,9 +93,10 @@ def _add_posterior_options(p) -> None:
     """The option groups of ``fit`` for the posterior and the profile likelihood."""
     g = p.add_argument_group(
         "posterior (docs/posterior.md)",
-        "--posterior samples the Bayesian posterior after the fit, from a proposal placed by "
-        "the least-squares optimum. Exit 3 when a split R-hat exceeds 1.01, a transition "
-        "diverged or the proposal misses part of the posterior (Pareto k > 0.7).",
+        "--posterior samples the Bayesian posterior after the fit (sequential Monte Carlo by "
+        "default; --chains: independent populations, --samples: particles each). Exit 3 when "
+        "an R-hat exceeds 1.01, a bulk or tail ESS is below 400, a transition diverged or a "
+        "proposal misses part of the posterior.",
     )
     g.add_argument("--posterior", action="store_true", help="sample the posterior")
     g.add_argument(
@@ -113,11 +114,11 @@ def _add_posterior_options(p) -> None:
     g.add_argument("--warmup", type=int, default=300, help="warm-up steps per chain (default 300)")
     g.add_argument(
         "--sampler",
-        choices=("auto", "independence", "hmc", "smc"),
+        choices=("auto", "smc", "independence", "hmc"),
         default="auto",
-        help="auto (default): independence Metropolis on a proposal fitted to the posterior, "
-        "HMC where that proposal misses part of it; or force either; smc: tempered sequential "
-        "Monte Carlo from the prior and the fit (opt-in, docs/posterior.md)",
+        help="auto (default) = smc: tempered sequential Monte Carlo from the fit's t (where it "
+        "covers the posterior) or the prior, in independent populations; independence: "
+        "independence Metropolis on a t proposal (nearly Gaussian posteriors); hmc: HMC",
     )
     g.add_argument("--draws", metavar="FILE.nc", help="write the draws (ArviZ InferenceData)")
     g.add_argument("--corner", metavar="FILE.png", help="corner plot of the draws")
@@ -278,12 +279,27 @@ def cmd_fit(args) -> int:
     failed = [] if result.converged else [f"fit {result.message}"]
     if args.profile is not None and result.converged:
         outputs.append(_fit_profile(args, result, document, drawn, progress))
-    if args.posterior and result.converged:
+    # The posterior is the answer where the data leave a parameter undetermined (the
+    # least-squares uncertainty is undefined there, the posterior's is not).
+    sampled = result.converged or result.status == "undetermined"
+    if args.posterior and sampled:
         post = _fit_posterior(args, scene, names, priors, result, document, outputs, drawn)
         if not post.converged:
             failed.append(f"posterior {post.message}")
-    elif (args.posterior or args.profile) and not result.converged:
-        print("the least-squares fit did not converge: no posterior or profile", file=sys.stderr)
+        elif result.status == "undetermined":
+            failed.remove(f"fit {result.message}")
+            print(
+                "the least-squares uncertainty is undefined (the data leave a parameter open); "
+                "the posterior describes it",
+                file=sys.stderr,
+            )
+    if (args.posterior and not sampled) or (args.profile and not result.converged):
+        print(
+            "the least-squares fit did not converge: no "
+            + ("posterior or profile" if args.posterior and args.profile else
+               "posterior" if args.posterior else "profile"),
+            file=sys.stderr,
+        )  # fmt: skip
     outputs.insert(0, (args.output, lambda path: write_json_dict(path, document)))
     _write_outputs(outputs)
     if failed:

@@ -74,11 +74,21 @@ def _sample_toy(residuals, n, mean, cov, **kw):
 @pytest.fixture(scope="module")
 def toy_posterior():
     residuals, A, y, mean, cov = _linear_problem()
-    return _sample_toy(residuals, len(y), mean, cov), mean, cov
+    return _sample_toy(residuals, len(y), mean, cov, draws=1000), mean, cov
 
 
 def test_sampler_recovers_linear_gaussian_posterior(toy_posterior):
+    """The default sampler (SMC) on the linear-Gaussian toy: the fit's t covers the
+    posterior, so the particles start from it (said in ``reason``)."""
     result, mean, cov = toy_posterior
+    assert result.sampler == "smc" and "from a t on the least-squares fit" in result.reason
+    assert all(result.summary[n]["ess_tail"] >= _posterior.MIN_ESS for n in NAMES)
+    _check_gaussian_posterior(result, mean, cov)
+
+
+def test_independence_sampler_recovers_linear_gaussian_posterior():
+    residuals, A, y, mean, cov = _linear_problem()
+    result = _sample_toy(residuals, len(y), mean, cov, sampler="independence")
     assert result.sampler == "independence" and result.khat < 0.5
     _check_gaussian_posterior(result, mean, cov)
 
@@ -91,17 +101,19 @@ def test_hmc_recovers_linear_gaussian_posterior():
     _check_gaussian_posterior(result, mean, cov)
 
 
-def test_independence_proposal_that_misses_is_diagnosed_and_auto_falls_back_to_hmc():
+def test_independence_proposal_that_misses_is_refused_and_smc_starts_from_the_prior():
     """A least-squares covariance 1e4 times too small: the independence proposal is far too
-    narrow, its importance weights heavy-tailed (Pareto k > 0.7); the run is refused, and
-    ``auto`` samples by HMC instead."""
+    narrow, its importance weights heavy-tailed (Pareto k > 0.7), and the run is refused; the
+    default (SMC) sees from the same weights that the fit's t does not cover the posterior,
+    starts from the prior instead, and recovers the closed form."""
     residuals, A, y, mean, cov = _linear_problem()
     narrow = dict(draws=60, warmup=20)
     refused = _sample_toy(residuals, len(y), mean, cov * 1e-4, sampler="independence", **narrow)
     assert refused.khat > 0.7 and not refused.converged
     assert any("Pareto k" in p for p in refused.problems)
-    auto = _sample_toy(residuals, len(y), mean, cov * 1e-4, sampler="auto", **narrow)
-    assert auto.sampler == "hmc" and auto.khat > 0.7
+    auto = _sample_toy(residuals, len(y), mean, cov * 1e-4, draws=1000)
+    assert auto.sampler == "smc" and "from the prior" in auto.reason
+    _check_gaussian_posterior(auto, mean, cov)
 
 
 def test_independence_proposal_is_replaced_when_the_pilot_misses(monkeypatch):
@@ -113,7 +125,7 @@ def test_independence_proposal_is_replaced_when_the_pilot_misses(monkeypatch):
     once = _sample_toy(residuals, len(y), mean, cov * 1e-2, sampler="independence")
     assert once.khat > 0.7 and not once.converged
     monkeypatch.undo()
-    refined = _sample_toy(residuals, len(y), mean, cov * 1e-2, sampler="auto")
+    refined = _sample_toy(residuals, len(y), mean, cov * 1e-2, sampler="independence")
     assert refined.sampler == "independence" and refined.khat <= 0.7
     _check_gaussian_posterior(refined, mean, cov)
 
@@ -229,7 +241,7 @@ def test_posterior_json_fields(toy_posterior):
     flat = result.draws.reshape(-1, 3)
     for i, n in enumerate(NAMES):
         post = d["params"][n]["posterior"]
-        assert set(post) == {"mean", "median", "sd", "q05", "q95", "rhat", "ess"}
+        assert set(post) == {"mean", "median", "sd", "q05", "q95", "rhat", "ess", "ess_tail"}
         assert post["q05"] < post["median"] < post["q95"]
         assert post["mean"] == pytest.approx(flat[:, i].mean(), rel=1e-12)
         assert post["q05"] == pytest.approx(np.quantile(flat[:, i], 0.05), rel=1e-12)
@@ -600,6 +612,7 @@ def test_cli_short_posterior_is_refused_with_exit_3_and_writes_json(tmp_path, ca
             "q95",
             "rhat",
             "ess",
+            "ess_tail",
         }
     assert d["profile"]["name"] == "f0"
     # The posterior's fit time is the CLI's fit's own (it was 0: timed from the posterior's
@@ -611,23 +624,13 @@ def test_cli_short_posterior_is_refused_with_exit_3_and_writes_json(tmp_path, ca
     assert (tmp_path / "corner.png").stat().st_size > 0
 
 
-def test_smc_recovers_linear_gaussian_posterior():
-    """sampler="smc" on the linear-Gaussian toy: the closed-form posterior, judged by the rank
-    R-hat over independent populations and bulk/tail ESS (which must pass here)."""
-    residuals, A, y, mean, cov = _linear_problem()
-    result = _sample_toy(residuals, len(y), mean, cov, sampler="smc", draws=1000)
-    assert result.sampler == "smc" and result.stages is not None
-    assert all(result.summary[n]["ess_tail"] >= _posterior.MIN_ESS for n in NAMES)
-    _check_gaussian_posterior(result, mean, cov)
-
-
 def test_smc_finds_the_posterior_from_a_misplaced_fit():
     """A least-squares centre 5 standard errors off and a covariance 100 times too small: the
     reference (a t on it mixed with the prior) does not cover the posterior, tempering
     carries the particles there anyway, and the result is the closed form."""
     residuals, A, y, mean, cov = _linear_problem()
     off = mean + 5 * np.sqrt(np.diag(cov))
-    result = _sample_toy(residuals, len(y), off, cov * 1e-2, sampler="smc", draws=500)
+    result = _sample_toy(residuals, len(y), off, cov * 1e-2, sampler="smc", draws=1000)
     assert np.max(result.stages) > 1
     _check_gaussian_posterior(result, mean, cov)
 

@@ -1,11 +1,19 @@
-"""Bayesian posterior of the fitted parameters by Hamiltonian Monte Carlo (blackjax).
+"""Bayesian posterior of the fitted parameters: sequential Monte Carlo (default), the
+independence sampler or HMC.
 
-The log density is written in the solver variables ``u`` of ``_transforms`` (with the Jacobian
-term of each prior, ``_priors``), plus one log noise factor per observable that has no sigma
-column. It calls the simulator directly, so the log density and its gradient (the simulator's
-own derivatives, see ``jaximpact._engine.simulate``) are one compiled JAX program with the sampler's
-step around them. The chains are a ``vmap`` that moves in step (the same number of leapfrog
-steps for all), so each evaluation runs every chain's impacts as one batch.
+The log density calls the simulator directly, so it (and, for HMC, its gradient: the
+simulator's own derivatives, see ``jaximpact._engine.simulate``) is one compiled JAX program,
+evaluated for many points at once. Samplers (``sampler=``, :data:`SAMPLERS`):
+
+- ``smc`` (``auto``, the default): tempered SMC (``_smc``) in the coordinates of ``_space``
+  (the logit of each log-uniform prior's range: no walls), in independent populations, from
+  the fit's Student-t mixed with the prior where that covers the posterior (its importance
+  weights say so), else from the prior. Values only; no Gaussian shape assumed: ridges, mass
+  against a prior's end, weakly determined parameters, captured impacts.
+- ``independence``: independence Metropolis on a t placed by the fit and a pilot (for
+  nearly Gaussian posteriors; refused where its Pareto k exceeds 0.7).
+- ``hmc``: blackjax's HMC, chains in step (one batch per gradient evaluation), in the
+  fit's solver variables ``u`` of ``_transforms``.
 
 Likelihood (``r``: the fit's weighted residuals, ``(model - observed) / scale``):
 
@@ -13,8 +21,10 @@ Likelihood (``r``: the fit's weighted residuals, ``(model - observed) / scale``)
   ``s_k`` per observable ``k`` (sampled, log-uniform on [1e-3, 1e3]) on the default scale;
 - ``student-t``: ``r / s ~ t(nu)`` (heavy tails: an outlier pulls less).
 
-A run is good only when every split R-hat is at most :data:`MAX_RHAT` and no transition
-diverged; otherwise ``status`` is ``"not converged"`` and ``problems`` says why.
+A run is good only when every R-hat is at most :data:`MAX_RHAT` (SMC: rank-normalized, over
+its independent populations, with bulk and tail ESS at least :data:`MIN_ESS`) and no
+transition diverged; otherwise ``status`` is ``"not converged"`` and ``problems`` says why.
+``reason`` says which sampler ran and why.
 """
 
 from __future__ import annotations
@@ -53,17 +63,17 @@ MAX_LEAPFROG = 64
 #: Default solver rtol of the posterior's evaluations in float64 (scenes that set their own
 #: rtol keep it). The sampler needs the log density to well under 0.1 and its gradient to a few
 #: per cent; rtol 1e-8 gives both with a wide margin (measured in BENCHMARKS.md: "Posterior
-#: and design") in about half the steps of the fit's default 1e-10.
-SAMPLING_RTOL = 1e-8
+#: and design") in about half the steps of the fit's default 1e-10; rtol 1e-7 (the default)
+#: keeps cor_n of 200 x 25 Table 1 impacts within 1.0e-5 of rtol 1e-10 (rms 2.2e-6, 0.07 % of
+#: a sigma of 0.003) in 90 steps against 127 at 1e-8 and 246 at 1e-10.
+SAMPLING_RTOL = 1e-7
 #: Default warm-up steps per chain (see `_run_hmc`: it starts from the least-squares shape).
 WARMUP = 300
 #: Range of the sampled noise factors (log-uniform prior).
 NOISE_FACTOR_RANGE = (1e-3, 1e3)
-#: Samplers: the independence sampler (default, values only: every proposal of every chain
-#: evaluated in a few large batches) and HMC (gradients; for posteriors the independence
-#: proposal cannot cover). ``auto``: the independence sampler, HMC where its Pareto k > 0.7.
-#: ``smc``: tempered sequential Monte Carlo (``_smc``; opt-in until its validation against grid
-#: posteriors is finished: docs/open_points.md).
+#: Samplers: ``auto`` (= ``smc``, or ``hmc`` when the chains' starts are given), ``smc``,
+#: ``independence`` (values only: every proposal of every chain evaluated in a few large
+#: batches; right only where its t proposal covers the posterior) and ``hmc`` (gradients).
 SAMPLERS = ("auto", "independence", "hmc", "smc")
 #: Largest Pareto shape of the importance weights at which the independence sampler's
 #: proposal is trusted (Vehtari et al. 2024, "Pareto smoothed importance sampling").
@@ -144,6 +154,8 @@ class PosteriorResult:
     #: marginal likelihood's estimate (up to the likelihood's constant terms).
     stages: np.ndarray | None = None
     log_evidence: float = math.nan
+    #: Which sampler ran and why (printed and in the JSON).
+    reason: str = ""
 
     @property
     def chains(self) -> int:
@@ -382,6 +394,7 @@ def _summarize(x: np.ndarray) -> dict:
         "q95": float(q95),
         "rhat": split_rhat(x),
         "ess": effective_sample_size(x),
+        "ess_tail": diagnostics.ess_tail(x),
     }
 
 
@@ -413,11 +426,11 @@ def _sample(
     :func:`sample_posterior`, open to a toy problem with a known posterior.
     ``batch_log_density``: ``Z (n, d) -> (n,)``, the independence sampler's (default: the
     log density ``vmap``-ed)."""
-    if sampler == "smc":
+    if sampler == "smc" or (sampler == "auto" and z0 is None):
         return _sample_smc(
             residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center,
             likelihood=likelihood, nu=nu, chains=chains, draws=draws, seed=seed,
-            progress=progress, batch=smc_batch,
+            progress=progress, batch=smc_batch, sampler=sampler,
         )  # fmt: skip
     p, k = len(names), len(noise)
     starts_given = z0 is not None  # chains placed by hand: HMC from there
@@ -428,7 +441,7 @@ def _sample(
         u_center, cov_u, groups, log_noise_center, p, k, chains, jitter, seed, z0
     )
     khat, used = math.nan, "hmc"
-    if sampler in ("auto", "independence") and not starts_given:
+    if sampler == "independence" and not starts_given:
         z, lp, accept, khat, evaluations, t_warm, t_draw = _run_independence(
             batch_log_density,
             center,
@@ -441,14 +454,6 @@ def _sample(
             judged=lambda z: _judged_quantities(names, z),
         )
         divergent, step_size, used = np.zeros(lp.shape, bool), math.nan, "independence"
-        if sampler == "auto" and not khat <= MAX_KHAT:
-            if progress:
-                print(
-                    f"posterior: the independence proposal misses part of the posterior "
-                    f"(Pareto k {khat:.2f} > {MAX_KHAT}); sampling by HMC",
-                    file=sys.stderr,
-                )
-            used = "hmc"
     if used == "hmc":
         z, lp, divergent, accept, step_size, evaluations, t_warm, t_draw = _run_hmc(
             log_density,
@@ -460,10 +465,17 @@ def _sample(
             target_accept=target_accept,
             progress=progress,
         )
-    return _posterior_result(
+    result = _posterior_result(
         names, noise, priors, likelihood, nu, chains, z, lp, divergent, accept, step_size,
         evaluations, t_warm, t_draw, used, khat,
     )  # fmt: skip
+    result.reason = (
+        "HMC: the chains' starts were given"
+        if starts_given
+        else f"{'HMC' if used == 'hmc' else 'independence Metropolis'}: as asked "
+        f"(sampler={sampler!r})"
+    )
+    return result
 
 
 def _starts_and_metric(u_center, cov_u, groups, log_noise_center, p, k, chains, jitter, seed, z0):
@@ -804,7 +816,8 @@ def sample_posterior(
         t_start -= t_fit
     objective = fit_result.objective
     theta = fit_result.theta
-    _check_inside_priors(names, theta, prior_map)
+    if sampler in ("independence", "hmc"):  # SMC needs no start inside the prior
+        _check_inside_priors(names, theta, prior_map)
     sampled = _at_tolerance(objective, rtol)
     dpdu = dphys_du(names, theta)
     cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
@@ -835,7 +848,7 @@ def sample_posterior(
         smc_batch=_x_batch_log_density(
             sampled, SamplingSpace(names, noise, prior_map), groups, likelihood, nu
         )
-        if sampler == "smc"
+        if sampler in ("smc", "auto")
         else None,
     )
     result.fit = fit_result
@@ -1101,8 +1114,12 @@ def _run_smc_extended(evaluate, reference, space, *, chains, draws, rng, progres
     """SMC with ``chains`` populations of ``draws`` particles, extended by ``chains`` more
     populations (up to :data:`EXTENSIONS` times) while an R-hat or ESS fails."""
     desc = f"posterior (SMC, {chains} populations x {draws})"
+    prior = Reference(
+        np.zeros(space.dim), np.eye(space.dim), REFERENCE_NU, space.sample_prior,
+        space.log_prior_normalized, 1.0,
+    )  # fmt: skip
     runs = [run_smc(evaluate, reference, populations=chains, particles=draws, rng=rng,
-                    progress=progress, description=desc)]  # fmt: skip
+                    progress=progress, description=desc, fallback=prior)]  # fmt: skip
     for _ in range(SMC_EXTENSIONS):
         merged = _merge_runs(runs)
         judged = _x_judged(space, merged.draws)
@@ -1110,8 +1127,9 @@ def _run_smc_extended(evaluate, reference, space, *, chains, draws, rng, progres
         if not _smc_problems(summary):
             break
         runs.append(
-            run_smc(evaluate, reference, populations=chains, particles=draws, rng=rng,
-                    progress=progress, description=desc + ", extended")
+            run_smc(evaluate, prior if runs[0].from_fallback else reference,
+                    populations=chains, particles=draws, rng=rng, progress=progress,
+                    description=desc + ", extended")
         )  # fmt: skip
     return _merge_runs(runs)
 
@@ -1133,6 +1151,7 @@ def _merge_runs(runs: list[SMCRun]) -> SMCRun:
         evaluations=sum(r.evaluations for r in runs),
         seconds=sum(r.seconds for r in runs),
         problems=[p for r in runs for p in r.problems],
+        from_fallback=runs[0].from_fallback,
     )
 
 
@@ -1240,7 +1259,7 @@ def _face_mass(grid, half_width) -> float:
 
 def _sample_smc(
     residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center, *, likelihood,
-    nu, chains, draws, seed, progress, batch=None,
+    nu, chains, draws, seed, progress, batch=None, sampler="smc",
 ) -> PosteriorResult:  # fmt: skip
     """``sampler="smc"``: tempered SMC in the coordinates of ``_space``, judged by the
     rank-normalized R-hat over its independent populations, bulk and tail ESS and the
@@ -1273,4 +1292,17 @@ def _sample_smc(
     result.status = "converged" if result.converged else "not converged"
     result.stages = run.stages
     result.log_evidence = float(np.mean(run.log_evidence))
+    start = (
+        "from the prior: a t on the least-squares fit did not cover the posterior (its "
+        "importance weights' ESS or Pareto k failed)"
+        if run.from_fallback
+        else "from a t on the least-squares fit mixed with the prior (its importance weights "
+        "showed that it covers the posterior)"
+    )
+    result.reason = (
+        f"SMC ({'the default' if sampler == 'auto' else 'as asked'}; values only, no Gaussian "
+        f"shape assumed): {run.draws.shape[0]} independent populations of "
+        f"{run.draws.shape[1]} particles, {start}; {int(np.max(run.stages))} tempering "
+        f"step(s), {int(np.median(run.moves))} moves per population (median)"
+    )
     return result

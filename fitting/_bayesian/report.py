@@ -36,6 +36,8 @@ def posterior_fields(result: PosteriorResult) -> dict:
         "chains": int(result.chains),
         "draws_per_chain": int(result.draws.shape[1]),
         "sampler": result.sampler,
+        "reason": result.reason,
+        "log_evidence": _num(result.log_evidence),
         "pareto_k": _num(result.khat),
         "divergences": int(result.divergences),
         "acceptance": _num(result.acceptance),
@@ -55,7 +57,8 @@ _SAMPLER_NAMES = {
 
 
 def _stats(s: dict) -> dict:
-    return {k: _num(s[k]) for k in ("mean", "median", "sd", "q05", "q95", "rhat", "ess")}
+    keys = ("mean", "median", "sd", "q05", "q95", "rhat", "ess", "ess_tail")
+    return {k: _num(s[k]) for k in keys}
 
 
 def add_to_result_dict(d: dict, result: PosteriorResult) -> dict:
@@ -75,6 +78,8 @@ def posterior_summary(result: PosteriorResult) -> str:
         f"draws, {_SAMPLER_NAMES[result.sampler]}): "
         + ("converged" if result.converged else "NOT CONVERGED"),
     ]
+    if result.reason:
+        lines.append(f"  sampler: {result.reason}")
     for problem in result.problems:
         lines.append(f"  because {problem}")
     names = list(result.params) + list(result.noise)

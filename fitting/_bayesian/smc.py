@@ -14,10 +14,10 @@ reach). The particles then follow the geometric path ``pi_b ~ q0^(1-b) posterior
    sampling);
 2. **resample** (systematic);
 3. **move**: Metropolis-Hastings steps that leave ``pi_b`` invariant, alternately an
-   independence proposal from a kernel density estimate of the population (global moves
-   along curved ridges) and a random walk with the population's covariance (local moves,
-   step scaled toward 30 % acceptance), until each coordinate's correlation between the
-   particles' positions now and at the resampling is below :data:`DECORRELATION` (at
+   independence proposal from a Gaussian mixture fitted to the population (global moves:
+   its components follow a curved ridge) and a random walk with the population's covariance
+   (local moves, step scaled toward 30 % acceptance), until each coordinate's correlation
+   between the particles' positions now and at the resampling is below :data:`DECORRELATION` (at
    ``b = 1``; :data:`STAGE_DECORRELATION` on the way), so that the copies that resampling
    made of one particle have moved apart (the rule of PyMC's SMC).
 
@@ -51,9 +51,12 @@ FINAL_KHAT = 0.5
 #: Moves at b = 1 continue until every coordinate's correlation with the positions at the
 #: last resampling is below this; on the way to b = 1, below STAGE_DECORRELATION.
 DECORRELATION = 0.1
-STAGE_DECORRELATION = 0.3
+STAGE_DECORRELATION = 0.5
 #: Most moves per stage (a kernel that cannot decorrelate the particles stops here and says so).
 MAX_MOVES = 30
+#: ... and on the way to b = 1 at most this many (the next reweighting needs particles spread,
+#: not independent; the last stage's moves make them independent).
+MAX_STAGE_MOVES = 6
 #: Random-walk steps are scaled toward this acceptance rate.
 RW_ACCEPT = 0.3
 
@@ -123,6 +126,8 @@ class SMCRun:
         log_evidence: each population's estimate of the log marginal likelihood (up to the
             likelihood's constant terms).
         evaluations: log-density evaluations; seconds: wall time.
+        from_fallback: whether the particles started from the fallback (the prior) because
+            the reference did not cover the posterior.
         problems: what went wrong (a stage that could not decorrelate the particles).
     """
 
@@ -137,6 +142,7 @@ class SMCRun:
     evaluations: int
     seconds: float
     problems: list[str] = field(default_factory=list)
+    from_fallback: bool = False
 
 
 def _ess(log_w: np.ndarray) -> float:
@@ -191,57 +197,93 @@ def _covariance(X: np.ndarray) -> np.ndarray:
     return np.eye(d) * 1e-2
 
 
-def _kde_log_density(Y: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Log density (up to one constant shared by all rows) of a mixture of unit Gaussians on
-    ``centres`` at the rows of ``Y`` (both already whitened by the kernel's scale)."""
-    d2 = (
-        np.sum(Y * Y, axis=1)[:, None]
-        + np.sum(centres * centres, axis=1)[None, :]
-        - 2.0 * Y @ centres.T
-    )
-    return logsumexp(-0.5 * np.maximum(d2, 0.0), axis=1)
-
-
-#: The independence proposal: a kernel density estimate of the population (share 1 - WIDE)
-#: mixed with a Student-t (WIDE_NU degrees of freedom) on the population's mean and twice its
-#: standard deviations (share WIDE). The wide part gives the proposal heavier tails than the
-#: target, without which an independence sampler cannot grow a population that is too narrow
-#: (its proposal would never reach the tails it lacks).
+#: The independence proposal: a Gaussian mixture fitted to the population by EM (at most
+#: COMPONENTS components, each with its own covariance, so that a curved ridge is covered by
+#: straight pieces that follow it), its covariances widened by MIXTURE_WIDTH^2, mixed with a
+#: Student-t (WIDE_NU degrees of freedom) on the population's mean and twice its standard
+#: deviations (share WIDE). The wide part gives the proposal heavier tails than the target,
+#: without which an independence sampler cannot grow a population that is too narrow.
+COMPONENTS = 8
+MIXTURE_WIDTH = 1.2
+EM_ITERATIONS = 40
 WIDE = 0.25
 WIDE_NU = 3.0
+
+
+def _gaussian_log_densities(Y, means, chols):
+    """``(n, m)`` log densities of the rows of ``Y`` under each Gaussian component."""
+    n, d = Y.shape
+    out = np.empty((n, len(means)))
+    for j, (mean, chol) in enumerate(zip(means, chols, strict=True)):
+        z = np.linalg.solve(chol, (Y - mean).T)
+        out[:, j] = (
+            -0.5 * np.sum(z * z, axis=0)
+            - np.sum(np.log(np.diag(chol)))
+            - 0.5 * d * math.log(2 * math.pi)
+        )
+    return out
+
+
+def _fit_mixture(rng, X: np.ndarray, chol: np.ndarray):
+    """A Gaussian mixture fitted to ``X`` by EM (k-means++ starts in the population's
+    whitened coordinates, covariances regularized by 1e-4 of the population's): ``(log
+    weights, means, Cholesky factors)``."""
+    n, d = X.shape
+    m = max(1, min(COMPONENTS, n // (10 * (d + 1))))
+    W = np.linalg.solve(chol, X.T).T
+    centres = [W[rng.integers(n)]]
+    for _ in range(1, m):  # k-means++: each new centre far from the others
+        d2 = np.min(((W[:, None, :] - np.array(centres)[None]) ** 2).sum(-1), axis=1)
+        centres.append(W[rng.choice(n, p=d2 / d2.sum()) if d2.sum() > 0 else rng.integers(n)])
+    labels = np.argmin(((W[:, None, :] - np.array(centres)[None]) ** 2).sum(-1), axis=1)
+    resp = np.eye(m)[labels]
+    floor = 1e-4 * (chol @ chol.T) + 1e-12 * np.eye(d)
+    for it in range(EM_ITERATIONS + 1):
+        weight = resp.sum(axis=0) + 1e-12
+        means = (resp.T @ X) / weight[:, None]
+        chols = []
+        for j in range(m):
+            dev = X - means[j]
+            cov = (resp[:, j, None] * dev).T @ dev / weight[j] + floor
+            chols.append(np.linalg.cholesky(cov))
+        log_w = np.log(weight / n)
+        if it == EM_ITERATIONS:
+            break
+        log_p = _gaussian_log_densities(X, means, chols) + log_w
+        resp = np.exp(log_p - logsumexp(log_p, axis=1, keepdims=True))
+    return log_w, means, chols
 
 
 def _independence_proposal(rng, X: np.ndarray, chol: np.ndarray):
     """Draws (one per particle) of the independence proposal on population ``X`` (``chol``:
     the Cholesky factor of its covariance), and its log density ``Y -> (n,)``."""
     n, d = X.shape
-    h = (4.0 / (d + 2)) ** (1 / (d + 4)) * n ** (-1 / (d + 4))  # Silverman's bandwidth
+    log_w, means, chols = _fit_mixture(rng, X, chol)
+    chols = [MIXTURE_WIDTH * c for c in chols]
     mean = X.mean(axis=0)
-    wide = rng.uniform(size=n) < WIDE
+    component = rng.choice(len(means), size=n, p=np.exp(log_w) / np.exp(log_w).sum())
     Z = rng.standard_normal((n, d))
-    Xp = X[rng.integers(n, size=n)] + h * Z @ chol.T
+    Xp = np.empty((n, d))
+    for j in range(len(means)):
+        pick = component == j
+        Xp[pick] = means[j] + Z[pick] @ chols[j].T
+    wide = rng.uniform(size=n) < WIDE
     g = rng.chisquare(WIDE_NU, (n, 1))
     Xp[wide] = (mean + 2.0 * (Z @ chol.T) / np.sqrt(g / WIDE_NU))[wide]
-    centres = np.linalg.solve(chol, X.T).T / h
     log_det = float(np.sum(np.log(np.diag(chol))))
 
     def log_q(Y):
-        W = np.linalg.solve(chol, Y.T).T
-        kde = (
-            _kde_log_density(W / h, centres)
-            - math.log(n)
-            - d * math.log(h)
-            - 0.5 * d * math.log(2 * math.pi)
-        )
-        y2 = np.sum(((W - np.linalg.solve(chol, mean)) / 2.0) ** 2, axis=1)
+        mixture = logsumexp(_gaussian_log_densities(Y, means, chols) + log_w, axis=1)
+        y = np.linalg.solve(chol, (Y - mean).T).T / 2.0
         t = (
             math.lgamma((WIDE_NU + d) / 2)
             - math.lgamma(WIDE_NU / 2)
             - 0.5 * d * math.log(WIDE_NU * math.pi)
             - d * math.log(2.0)
-            - 0.5 * (WIDE_NU + d) * np.log1p(y2 / WIDE_NU)
+            - log_det
+            - 0.5 * (WIDE_NU + d) * np.log1p(np.sum(y * y, axis=1) / WIDE_NU)
         )
-        return np.logaddexp(math.log1p(-WIDE) + kde, math.log(WIDE) + t) - log_det
+        return np.logaddexp(math.log1p(-WIDE) + mixture, math.log(WIDE) + t)
 
     return Xp, log_q
 
@@ -268,10 +310,18 @@ def run_smc(
     rng: np.random.Generator,
     progress: bool = False,
     description: str = "posterior (SMC)",
+    fallback: Reference | None = None,
 ) -> SMCRun:
     """Independent SMC runs (``populations`` of ``particles`` each) of the posterior whose
     log density ``evaluate(X (n, d)) -> (n,)`` gives (up to a constant; ``-inf`` or NaN where
-    it is zero), from ``reference``; all populations' evaluations are one call per move."""
+    it is zero), from ``reference``; all populations' evaluations are one call per move.
+
+    ``fallback`` (the prior): used instead of ``reference`` unless the importance weights of
+    all the reference's draws pooled pass the test of a direct step to ``b = 1`` (ESS at
+    least FINAL_ESS of the draws, Pareto k at most FINAL_KHAT), i.e. unless the reference
+    already covers the posterior. A reference placed by a Gaussian approximation that fails
+    it misses a part of the posterior (the far end of a curved ridge, say) that no move can be
+    relied on to find; tempering from the prior finds it, at the cost of more steps."""
     t0 = time.perf_counter()
     K, N = populations, particles
     d = len(reference.mean)
@@ -296,6 +346,15 @@ def run_smc(
     X = X.reshape(K, N, d)
     lp = lp_flat.reshape(K, N)
     lq = np.array(reference.log_density(X.reshape(-1, d)), float).reshape(K, N)
+    delta = (lp - lq).reshape(-1)
+    delta = np.where(np.isfinite(delta), delta, -np.inf)
+    covered = _ess(delta) >= FINAL_ESS * K * N and _khat(delta) <= FINAL_KHAT
+    if fallback is not None and not covered:
+        reference = fallback
+        X = reference.sample(rng, K * N)[0]
+        lp = run(X).reshape(K, N)
+        X = X.reshape(K, N, d)
+        lq = np.array(reference.log_density(X.reshape(-1, d)), float).reshape(K, N)
     if not np.any(np.isfinite(lp)):
         bar.close()
         raise ValueError("the log posterior is -inf or NaN at every draw of the reference")
@@ -358,7 +417,8 @@ def run_smc(
             moves[k] += 1
             correlation[k] = _correlation(anchor[k], X[k])
             limit = DECORRELATION if beta[k] >= 1.0 else STAGE_DECORRELATION
-            if correlation[k] < limit or moved[k] >= MAX_MOVES:
+            most = MAX_MOVES if beta[k] >= 1.0 else MAX_STAGE_MOVES
+            if correlation[k] < limit or moved[k] >= most:
                 if correlation[k] >= limit and beta[k] >= 1.0:
                     stuck.append(
                         f"population {k + 1}: the moves left a correlation of "
@@ -383,4 +443,5 @@ def run_smc(
         evaluations=evaluations,
         seconds=time.perf_counter() - t0,
         problems=stuck,
+        from_fallback=reference is fallback,
     )
