@@ -67,6 +67,12 @@ MAX_LEAPFROG = 64
 #: keeps cor_n of 200 x 25 Table 1 impacts within 1.0e-5 of rtol 1e-10 (rms 2.2e-6, 0.07 % of
 #: a sigma of 0.003) in 90 steps against 127 at 1e-8 and 246 at 1e-10.
 SAMPLING_RTOL = 1e-7
+#: Step limit of the sampler's evaluations with an explicit solver (the scene's, if smaller).
+#: 20,000 Table 1 impacts over C_A 1e-3..5, C_H 0.1..0.5, f0 50..1500 s/m, N/m, 0.05-8 m/s
+#: take at most 189 steps at rtol 1e-7; the prior's stiff corners (C_H of tens of s/m) take
+#: up to the default 4,096 and hold up the batch they are in (prior draws evaluate 2.1x faster
+#: with 1,024). An impact past the limit fails: zero posterior density there.
+SAMPLING_MAX_STEPS = 1024
 #: Default warm-up steps per chain (see `_run_hmc`: it starts from the least-squares shape).
 WARMUP = 300
 #: Range of the sampled noise factors (log-uniform prior).
@@ -736,14 +742,18 @@ def _normalized(log_w):
 
 
 def _at_tolerance(objective: Objective, rtol: float | None) -> Objective:
-    """The objective with solver tolerance ``rtol`` (atol ``rtol / 100``) unless ``rtol`` is
-    None, the scene sets its own, or the precision is not float64 (its default is looser)."""
+    """The objective with solver tolerance ``rtol`` (atol ``rtol / 100``) and, for an explicit
+    solver, at most :data:`SAMPLING_MAX_STEPS` steps per impact, unless ``rtol`` is None, the
+    scene sets its own, or the precision is not float64 (its default is looser)."""
     solver = objective.scene.solver
     if rtol is None or solver.rtol is not None or jnp.result_type(float) != jnp.float64:
         return objective
     if not 0 < rtol < 1:
         raise FitError(f"rtol must be in (0, 1), got {rtol!r}")
-    scene = objective.scene.replace(solver={"rtol": rtol, "atol": solver.atol or rtol / 100})
+    settings = {"rtol": rtol, "atol": solver.atol or rtol / 100}
+    if not objective.method.startswith("kvaerno"):
+        settings["max_steps"] = min(solver.max_steps, SAMPLING_MAX_STEPS)
+    scene = objective.scene.replace(solver=settings)
     return Objective(
         scene,
         objective.observations,
@@ -1110,6 +1120,21 @@ def _reference(space: SamplingSpace, theta, cov_u, log_noise, groups) -> Referen
     )
 
 
+def _smc_summaries(space: SamplingSpace, run: SMCRun) -> dict:
+    """``{coordinate index: summary}`` of an SMC run's draws (physical values). The rank ESS
+    counts the particles as if independent; the last tempering step's weights bound what its
+    resampled copies are worth (the moves after it make them independent only as far as they
+    mix): the ESS reported is the smaller of the two."""
+    judged = _x_judged(space, run.draws)
+    floor = float(np.sum(run.final_ess))
+    out = {}
+    for i in range(space.dim):
+        s = _smc_summary(judged[..., i])
+        s["ess"], s["ess_tail"] = min(s["ess"], floor), min(s["ess_tail"], floor)
+        out[i] = s
+    return out
+
+
 def _run_smc_extended(evaluate, reference, space, *, chains, draws, rng, progress):
     """SMC with ``chains`` populations of ``draws`` particles, extended by ``chains`` more
     populations (up to :data:`EXTENSIONS` times) while an R-hat or ESS fails."""
@@ -1121,10 +1146,7 @@ def _run_smc_extended(evaluate, reference, space, *, chains, draws, rng, progres
     runs = [run_smc(evaluate, reference, populations=chains, particles=draws, rng=rng,
                     progress=progress, description=desc, fallback=prior)]  # fmt: skip
     for _ in range(SMC_EXTENSIONS):
-        merged = _merge_runs(runs)
-        judged = _x_judged(space, merged.draws)
-        summary = {i: _smc_summary(judged[..., i]) for i in range(space.dim)}
-        if not _smc_problems(summary):
+        if not _smc_problems(_smc_summaries(space, _merge_runs(runs))):
             break
         runs.append(
             run_smc(evaluate, prior if runs[0].from_fallback else reference,
@@ -1152,6 +1174,7 @@ def _merge_runs(runs: list[SMCRun]) -> SMCRun:
         seconds=sum(r.seconds for r in runs),
         problems=[p for r in runs for p in r.problems],
         from_fallback=runs[0].from_fallback,
+        final_ess=cat("final_ess"),
     )
 
 
@@ -1184,20 +1207,26 @@ def grid_reference(
     nu: float = 4.0,
     points: int = 40,
     half_width: float = 8.0,
+    axes: str = "whitened",
     rtol: float | None = SAMPLING_RTOL,
     progress: bool = False,
 ) -> dict:
     """The exact posterior of :func:`sample_posterior` on a grid, as a yardstick for samplers
     (1-3 parameters, data with sigmas: no noise factors).
 
-    The grid lies in the fit's whitened coordinates ``g`` (``x = centre + L g``, ``L`` the
-    Cholesky factor of the fit's covariance carried into the sampler's coordinates ``x``, a
-    parameter the data leave open at its prior's width), over ``|g| <= half_width``, refined
-    once to where the mass is (``_grid``). A grid along the parameters' own axes cannot
-    resolve a ridge thinner than its cells (a C_A-f0 ridge 70x thinner than long is common);
-    along the ridge's axes it can. Where more than 1e-6 of the mass lies on the box's faces the
-    box is doubled (up to twice). The physical values' mean, sd and 5/50/95 % quantiles come
-    from the cells as weighted points.
+    ``axes="whitened"``: the grid lies in the fit's whitened coordinates ``g`` (``x = centre +
+    L g``, ``L`` the Cholesky factor of the fit's covariance carried into the sampler's
+    coordinates ``x``, a parameter the data leave open at its prior's width), over ``|g| <=
+    half_width``, refined once to where the mass is (``_grid``). A grid along the parameters'
+    own axes cannot resolve a ridge thinner than its cells (a C_A-f0 ridge 70x thinner than
+    long is common); along the ridge's axes it can. Where more than 1e-6 of the mass lies on
+    the box's faces the box is doubled (up to twice). It cannot follow a ridge that curves away
+    from the fit's axes: check its face mass and compare two resolutions.
+    ``axes="parameters"``: the grid lies in ``ln p`` over each log-uniform prior's whole
+    range (nothing is outside it), refined once: robust where the posterior is wide or curved,
+    fine enough for 2 parameters (``points`` of 100-200).
+    The physical values' mean, sd and 5/50/95 % quantiles come from the cells as weighted
+    points.
 
     Returns ``{name: {mean, sd, q05, median, q95}}`` plus ``"_grid"`` (the `GridPosterior`
     in ``g``) and ``"_face_mass"`` (the mass on the box's faces).
@@ -1215,6 +1244,22 @@ def grid_reference(
     centre, chol = reference.mean, np.linalg.cholesky(reference.cov / REFERENCE_WIDTH**2)
     evaluate = _blocks(batch, BLOCK)
     d = space.dim
+    if axes == "parameters":
+        ends = [space._box(i) for i in range(d)]
+        if any(e is None for e in ends):
+            raise FitError("axes='parameters' needs log-uniform priors")
+        start = np.array([a for a, _ in ends])
+        width = np.array([b - a for a, b in ends])
+
+        def log_density(L):  # ln p -> x, with the Jacobian |dx / d ln p|
+            q = np.clip((L - start) / width, 1e-300, 1 - 1e-16)
+            return evaluate(np.log(q) - np.log1p(-q)) - np.sum(np.log(width * q * (1 - q)), 1)
+
+        grid = grid_posterior(
+            log_density, start, start + width, names=names, points=points, block=BLOCK,
+            to_physical=lambda i, u: np.exp(u), progress=progress,
+        )  # fmt: skip
+        return {**grid.summary, "_grid": grid, "_face_mass": 0.0}
     for _ in range(3):
         grid = grid_posterior(
             lambda G: evaluate(centre + G @ chol.T), [-half_width] * d, [half_width] * d,
@@ -1226,7 +1271,11 @@ def grid_reference(
         half_width *= 2
     mesh = np.stack(np.meshgrid(*grid.axes, indexing="ij"), axis=-1).reshape(-1, d)
     values = _x_judged(space, centre + mesh @ chol.T)
-    weight = grid.mass.reshape(-1)
+    return _weighted_summary(names, values, grid.mass.reshape(-1), grid, face)
+
+
+def _weighted_summary(names, values, weight, grid, face) -> dict:
+    """Mean, sd and 5/50/95 % quantiles of each column of ``values`` weighted by ``weight``."""
     out = {"_grid": grid, "_face_mass": face}
     for i, name in enumerate(names):
         v = values[:, i]
@@ -1283,8 +1332,8 @@ def _sample_smc(
         np.full(shape, run.acceptance), math.nan, run.evaluations, 0.0, run.seconds, "smc",
         run.khat,
     )  # fmt: skip
-    judged = np.concatenate([result.draws, result.noise_draws], axis=-1)
-    summary = {n: _smc_summary(judged[..., i]) for i, n in enumerate(result.params + result.noise)}
+    names_all = result.params + result.noise
+    summary = {names_all[i]: s for i, s in _smc_summaries(space, run).items()}
     for n, stats in summary.items():
         result.summary[n].update(rhat=stats["rhat"], ess=stats["ess"], ess_tail=stats["ess_tail"])
     result.problems = _smc_problems(summary) + run.problems

@@ -56,7 +56,7 @@ STAGE_DECORRELATION = 0.5
 MAX_MOVES = 30
 #: ... and on the way to b = 1 at most this many (the next reweighting needs particles spread,
 #: not independent; the last stage's moves make them independent).
-MAX_STAGE_MOVES = 6
+MAX_STAGE_MOVES = 3
 #: Random-walk steps are scaled toward this acceptance rate.
 RW_ACCEPT = 0.3
 
@@ -128,6 +128,9 @@ class SMCRun:
         evaluations: log-density evaluations; seconds: wall time.
         from_fallback: whether the particles started from the fallback (the prior) because
             the reference did not cover the posterior.
+        final_ess: each population's Kish effective sample size of its last step's weights
+            (the resampling makes copies; the moves after it make them independent only as
+            far as they mix, so this is a floor on what the population is worth).
         problems: what went wrong (a stage that could not decorrelate the particles).
     """
 
@@ -143,6 +146,7 @@ class SMCRun:
     seconds: float
     problems: list[str] = field(default_factory=list)
     from_fallback: bool = False
+    final_ess: np.ndarray | None = None
 
 
 def _ess(log_w: np.ndarray) -> float:
@@ -363,6 +367,7 @@ def run_smc(
     stages = np.zeros(K, int)
     moves = np.zeros(K, int)
     log_evidence = np.zeros(K)
+    final_ess = np.zeros(K)
     anchor = X.copy()
     moved = np.zeros(K, int)  # moves since the last resampling
     reweight = np.ones(K, bool)
@@ -383,6 +388,7 @@ def run_smc(
             log_w = (new - beta[k]) * delta
             log_w = np.where(np.isfinite(log_w), log_w, -np.inf)
             log_evidence[k] += logsumexp(log_w) - math.log(N)
+            final_ess[k] = _ess(log_w)
             if new >= 1.0:
                 khat = max(khat, _khat(log_w))
             pick = _systematic(rng, log_w, N)
@@ -444,4 +450,5 @@ def run_smc(
         seconds=time.perf_counter() - t0,
         problems=stuck,
         from_fallback=reference is fallback,
+        final_ess=final_ess,
     )

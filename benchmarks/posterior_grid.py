@@ -1,0 +1,236 @@
+"""The posterior samplers against exact grid posteriors of the same likelihood and priors.
+
+Synthetic Table 1 data (truth C_A = 0.75 s/m, C_H = 0.25 s/m, f0 = 300 N/m; cor_n with sigma
+0.003, observed captures as ``captured``), one noise draw per case. For each case: the exact
+posterior by `fitting._bayesian.posterior.grid_reference` at two resolutions (their
+difference is the grid's own error), then `fitting.sample_posterior` with the default sampler
+(SMC) and with the independence sampler (the default before), each from a cold start of its
+program in this process. Errors are in units of the grid's sd: mean and 5/50/95 % quantiles
+(worst over parameters), and the sd ratio.
+
+Cases (the kinds of issue 34):
+- ``gaussian``: 25 impacts 0.3-5 m/s at 0-60 degrees, C_A, C_H, f0 (grid in the fit's
+  whitened axes);
+- ``near_capture``: 8 normal impacts from 1.05 to 4 times the capture speed, C_A and f0;
+- ``captured``: 11 normal impacts from half the capture speed to 5 m/s (the slowest captured,
+  observed as ``captured``), C_A and f0;
+- ``ridge``: 8 normal impacts 0.2-8 m/s, C_A and f0 (a curved C_A-f0 ridge);
+- ``weak``: 6 normal impacts 0.6-8 m/s, C_A and f0 (C_A weakly determined, mass toward 0);
+- ``bound``: the weak design with C_A's prior log-uniform on 0.3-3 s/m;
+- ``weak3``, ``bound3``: the same two with C_A, C_H and f0 (with C_H known the weak design
+  determines C_A and f0 well; with all three C_A is weakly determined, with mass toward 0).
+Cases other than ``gaussian`` use grids along ``ln p`` over the whole prior box (robust to
+curvature and to mass far from the fit; 3 parameters at 45^3 and 60^3 points), C_H held at its
+true value where it is not fitted.
+
+Run: ``python benchmarks/posterior_grid.py [--cases a,b] [--json out.json]`` (about 3 minutes
+a case on 2 cores).
+"""
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jaximpact
+
+jaximpact.use_all_cpu_cores()
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+import fitting  # noqa: E402
+from fitting._bayesian.posterior import grid_reference  # noqa: E402
+
+TRUTH = {"C_A": 0.75, "C_H": 0.25, "f0": 300.0}
+SIGMA = 0.003
+INITIAL = {"C_A": 1.5, "C_H": 0.15, "f0": 500.0}
+
+
+def capture_speed(scene):
+    """Normal capture speed of the truth scene (bisection on the status)."""
+    lo, hi = 1e-3, 5.0
+    for _ in range(40):
+        mid = math.sqrt(lo * hi)
+        captured = int(jaximpact.simulate(scene, mid, 0.0, 0.0).status) == 1
+        lo, hi = (mid, hi) if captured else (lo, mid)
+    return hi
+
+
+def compare(summary, grid, names):
+    """Errors of ``summary`` against ``grid`` in units of the grid's sd: ``{name: {mean, q05,
+    median, q95, sd_ratio}, "worst": ...}``."""
+    out, worst = {}, 0.0
+    for n in names:
+        sd = grid[n]["sd"]
+        e = {k: abs(summary[n][k] - grid[n][k]) / sd for k in ("mean", "q05", "median", "q95")}
+        worst = max(worst, *e.values())
+        out[n] = {**e, "sd_ratio": summary[n]["sd"] / sd}
+    out["worst"] = worst
+    return out
+
+
+def cases(v_c):
+    three, two = ("C_A", "C_H", "f0"), ("C_A", "f0")
+    normal = lambda n: np.zeros(n)  # noqa: E731
+    return {
+        "gaussian": (np.geomspace(0.3, 5.0, 25), np.tile([0.0, 0.0, 30.0, 45.0, 60.0], 5),
+                     three, None, dict(axes="whitened", points=(30, 40))),
+        "near_capture": (np.geomspace(1.05 * v_c, 4 * v_c, 8), normal(8), two, None,
+                         dict(axes="parameters", points=(100, 140))),
+        "captured": (np.geomspace(0.5 * v_c, 5.0, 11), normal(11), two, None,
+                     dict(axes="parameters", points=(100, 140))),
+        "ridge": (np.geomspace(0.2, 8.0, 8), normal(8), two, None,
+                  dict(axes="parameters", points=(100, 140))),
+        "weak": (np.geomspace(0.6, 8.0, 6), normal(6), two, None,
+                 dict(axes="parameters", points=(100, 140))),
+        "bound": (np.geomspace(0.6, 8.0, 6), normal(6), two, {"C_A": "loguniform:0.3:3"},
+                  dict(axes="parameters", points=(100, 140))),
+        "weak3": (np.geomspace(0.6, 8.0, 6), normal(6), three, None,
+                  dict(axes="parameters", points=(45, 60))),
+        "bound3": (np.geomspace(0.6, 8.0, 6), normal(6), three, {"C_A": "loguniform:0.3:3"},
+                   dict(axes="parameters", points=(45, 60))),
+    }  # fmt: skip
+
+
+def write_data(path, scene, names, speed, angle, rng):
+    """Noisy cor_n of the truth (``captured`` rows where the truth captures)."""
+    placeholder = Path(path)
+    rows = ["speed,angle_deg,observable,value,sigma"]
+    rows += [
+        f"{float(s)!r},{float(a)!r},cor_n,0.5,{SIGMA}" for s, a in zip(speed, angle, strict=True)
+    ]
+    placeholder.write_text("\n".join(rows) + "\n")
+    result = jaximpact.simulate(scene, speed, angle, 0.0)
+    status, cor_n = np.asarray(result.status), np.asarray(result.cor_n)
+    rows = ["speed,angle_deg,observable,value,sigma"]
+    for s, a, st, c in zip(speed, angle, status, cor_n, strict=True):
+        if st == 1:
+            rows.append(f"{float(s)!r},{float(a)!r},captured,1.0,0.01")
+        else:
+            rows.append(
+                f"{float(s)!r},{float(a)!r},cor_n,{float(c + SIGMA * rng.normal())!r},{SIGMA}"
+            )
+    placeholder.write_text("\n".join(rows) + "\n")
+    return placeholder, int(np.sum(status == 1))
+
+
+def run_case(name, spec, folder, truth_scene):
+    speed, angle, names, priors, grid_options = spec
+    rng = np.random.default_rng(7)
+    data, captured = write_data(folder / f"{name}.csv", truth_scene, names, speed, angle, rng)
+    scene = truth_scene  # C_H at its true value where it is not fitted
+    t0 = time.perf_counter()
+    fit = fitting.fit(scene, data, names, initial={n: INITIAL[n] for n in names}, starts=1,
+                      progress=False)  # fmt: skip
+    t_fit = time.perf_counter() - t0
+    grids = []
+    for points in grid_options["points"]:
+        t0 = time.perf_counter()
+        g = grid_reference(fit, priors, points=points, axes=grid_options["axes"])
+        grids.append((points, g, time.perf_counter() - t0))
+    grid = grids[-1][1]
+    grid_self = compare(grids[0][1], grid, names)["worst"]
+    out = {
+        "case": name,
+        "params": list(names),
+        "impacts": int(speed.size),
+        "captured": captured,
+        "fit_status": fit.status,
+        "fit_s": t_fit,
+        "grid": {n: grid[n] for n in names},
+        "grid_points": [p for p, _, _ in grids],
+        "grid_s": [t for _, _, t in grids],
+        "grid_face_mass": grid["_face_mass"],
+        "grid_self_error": grid_self,
+    }
+    for sampler in ("auto", "independence"):
+        t0 = time.perf_counter()
+        try:
+            post = fitting.sample_posterior(scene, data, names, priors=priors, fit_result=fit,
+                                            sampler=sampler, progress=False)  # fmt: skip
+        except fitting.FitError as error:
+            out[sampler] = {"error": str(error)}
+            continue
+        wall = time.perf_counter() - t0
+        errors = compare(post.summary, grid, names)
+        out[sampler] = {
+            "sampler": post.sampler,
+            "reason": post.reason,
+            "converged": bool(post.converged),
+            "problems": post.problems,
+            "worst": errors["worst"],
+            "errors": {n: errors[n] for n in names},
+            "summary": {
+                n: {
+                    k: post.summary[n][k]
+                    for k in ("mean", "sd", "q05", "median", "q95", "rhat", "ess", "ess_tail")
+                }
+                for n in names
+            },  # fmt: skip
+            "ess_min": min(
+                min(post.summary[n]["ess"], post.summary[n]["ess_tail"]) for n in names
+            ),  # fmt: skip
+            "evaluations": post.evaluations,
+            "seconds": wall,
+        }
+    return out
+
+
+def table(rows):
+    print("| case | params | sampler | converged | worst error (grid sd) | sd ratio | ESS min "
+          "| s | grid self-error |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        for key in ("auto", "independence"):
+            s = r[key]
+            if "error" in s:
+                print(f"| {r['case']} | {len(r['params'])} | {key} | refused: {s['error']} |")
+                continue
+            ratio = [s["errors"][n]["sd_ratio"] for n in r["params"]]
+            print(
+                f"| {r['case']} | {len(r['params'])} | {s['sampler']} | "
+                f"{'yes' if s['converged'] else 'no'} | {s['worst']:.2f} | "
+                f"{min(ratio):.2f}-{max(ratio):.2f} | {s['ess_min']:.0f} | {s['seconds']:.1f} | "
+                f"{r['grid_self_error']:.3f} |"
+            )
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", help="comma list (default: all)")
+    ap.add_argument("--json", help="write the numbers here")
+    ap.add_argument("--table", help="print the table of a JSON written before")
+    args = ap.parse_args(argv)
+    if args.table:
+        table(json.loads(Path(args.table).read_text()))
+        return 0
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        placeholder = folder / "p.csv"
+        placeholder.write_text("speed,angle_deg,observable,value,sigma\n1.0,0.0,cor_n,0.5,0.01\n")
+        truth_scene = fitting.Objective(
+            jaximpact.table1_scene(), placeholder, list(TRUTH)
+        ).scene_at(TRUTH)
+        v_c = capture_speed(truth_scene)
+        print(f"capture speed at the truth: {v_c:.4f} m/s", flush=True)
+        specs = cases(v_c)
+        for name in args.cases.split(",") if args.cases else specs:
+            row = run_case(name, specs[name], folder, truth_scene)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            if args.json:
+                Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+    table(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
