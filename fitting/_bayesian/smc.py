@@ -258,10 +258,10 @@ def _fit_mixture(rng, X: np.ndarray, chol: np.ndarray):
     return log_w, means, chols
 
 
-def _independence_proposal(rng, X: np.ndarray, chol: np.ndarray):
-    """Draws (one per particle) of the independence proposal on population ``X`` (``chol``:
-    the Cholesky factor of its covariance), and its log density ``Y -> (n,)``."""
-    n, d = X.shape
+def _independence_proposal(rng, X: np.ndarray, chol: np.ndarray, n: int):
+    """``n`` draws of the independence proposal fitted to the particles ``X`` (``chol``: the
+    Cholesky factor of the population's covariance), and its log density ``Y -> (n,)``."""
+    d = X.shape[1]
     log_w, means, chols = _fit_mixture(rng, X, chol)
     chols = [MIXTURE_WIDTH * c for c in chols]
     mean = X.mean(axis=0)
@@ -368,6 +368,7 @@ def run_smc(
     moves = np.zeros(K, int)
     log_evidence = np.zeros(K)
     final_ess = np.zeros(K)
+    group = np.tile(np.arange(N) % 2, (K, 1))
     anchor = X.copy()
     moved = np.zeros(K, int)  # moves since the last resampling
     reweight = np.ones(K, bool)
@@ -392,6 +393,7 @@ def run_smc(
             if new >= 1.0:
                 khat = max(khat, _khat(log_w))
             pick = _systematic(rng, log_w, N)
+            group[k] = rng.permutation(N)[pick] % 2  # the copies of one particle together
             X[k], lp[k], lq[k] = X[k][pick], lp[k][pick], lq[k][pick]
             beta[k], stages[k] = new, stages[k] + 1
             anchor[k], moved[k], reweight[k] = X[k].copy(), 0, False
@@ -401,8 +403,22 @@ def run_smc(
         for k in active:
             chol = _covariance(X[k])
             if moved[k] % 2 == 0:  # independence proposal (see _independence_proposal)
-                Xp, log_q = _independence_proposal(rng, X[k], chol)
-                log_ratio.append(log_q(X[k]) - log_q(Xp))
+                # Each half of the particles moves by a proposal fitted to the other half: a
+                # proposal fitted to the particles it moves is densest where they already are
+                # (the mixture overfits them), which favours moves away and widens the result
+                # (by 3 % of the sd on the grid cases, before this split).
+                Xp, ratio = np.empty((N, d)), np.empty(N)
+                for half in (0, 1):
+                    moving = group[k] == half
+                    if not moving.any():
+                        continue
+                    others = X[k][~moving] if (~moving).sum() > 2 * d else X[k]
+                    draws, log_q = _independence_proposal(
+                        rng, others, _covariance(others), int(moving.sum())
+                    )
+                    Xp[moving] = draws
+                    ratio[moving] = log_q(X[k][moving]) - log_q(draws)
+                log_ratio.append(ratio)
             else:  # random walk
                 Xp = X[k] + rw_scale[k] * rng.standard_normal((N, d)) @ chol.T
                 log_ratio.append(np.zeros(N))
