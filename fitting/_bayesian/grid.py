@@ -5,11 +5,12 @@ box, ``points`` cells per dimension: ``points**d`` evaluations per pass, so d = 
 The cell probabilities are the normalised ``exp(log density)`` at the centres (midpoint rule),
 with no sampling error, so a sampler's summary can be compared with them (:func:`compare`).
 
-Two passes (``refine=True``): pass 1 on the given box finds the cells whose mass is above
-``floor`` times the largest cell's; pass 2 puts ``points`` cells on the smallest box holding
-them, widened by 1.5 pass-1 cells on each side and clipped to the given box, so mass piled
-against an edge of the box (a bound of the prior) stays inside. Pass 1 must resolve the
-posterior: a mode narrower than one of its cells can be missed.
+Refinement (``refine=True``): pass 1 on the given box finds the cells whose mass is above
+``floor`` times the largest cell's; the next pass puts ``points`` cells on the smallest box
+holding them, widened by 1.5 cells on each side and clipped to the box before, so mass piled
+against an edge of the box (a bound of the prior) stays inside; passes go on (up to
+:data:`MAX_PASSES`) while the box still shrinks to less than half in some dimension. Pass 1
+must resolve the posterior: a mode narrower than one of its cells can be missed.
 
 Accuracy, ``h`` the spacing: mean and sd by the midpoint rule, error O(h^2) (much smaller for
 smooth densities that vanish at the box edges). Quantiles come from the marginal CDF, built
@@ -33,7 +34,9 @@ import numpy as np
 __all__ = ["GridPosterior", "compare", "grid_posterior"]
 
 QUANTILES = {"q05": 0.05, "median": 0.5, "q95": 0.95}
-_MAX_CELL_SLOPE = 8.0  # |d log p / du| * h: beyond it a cell is not resolved anyway
+_MAX_CELL_SLOPE = 8.0
+#: Most passes of the refinement (the first on the given box).
+MAX_PASSES = 5  # |d log p / du| * h: beyond it a cell is not resolved anyway
 
 
 @dataclass
@@ -92,12 +95,19 @@ def grid_posterior(
     if to_physical is None:
         to_physical = _identity
 
-    passes = 2 if refine else 1
+    passes = MAX_PASSES if refine else 1
     axes, log_p, mass = _pass(log_density, lower, upper, points, block, progress, 1, passes)
-    if refine:
+    for k in range(2, passes + 1):
+        # Refine while the mass fills less than half of the box in some dimension (a narrow
+        # posterior in a wide prior box needs more than one step).
         lo2, hi2 = _refined_box(axes, mass, lower, upper, floor)
-        if np.any(lo2 != lower) or np.any(hi2 != upper):
-            axes, log_p, mass = _pass(log_density, lo2, hi2, points, block, progress, 2, 2)
+        if np.all(lo2 == lower) and np.all(hi2 == upper):
+            break
+        shrunk = np.any(hi2 - lo2 < 0.5 * (upper - lower))
+        lower, upper = lo2, hi2
+        axes, log_p, mass = _pass(log_density, lower, upper, points, block, progress, k, passes)
+        if not shrunk:
+            break
 
     grid = GridPosterior(names=names, axes=axes, log_density=log_p, mass=mass, summary={})
     for i, name in enumerate(names):

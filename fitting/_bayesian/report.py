@@ -73,9 +73,10 @@ def add_to_result_dict(d: dict, result: PosteriorResult) -> dict:
 
 def posterior_summary(result: PosteriorResult) -> str:
     """Readable lines: status, each parameter's posterior next to its least-squares value."""
+    units = ("populations", "particles") if result.sampler == "smc" else ("chains", "draws")
     lines = [
-        f"posterior ({result.likelihood}; {result.chains} chains x {result.draws.shape[1]} "
-        f"draws, {_SAMPLER_NAMES[result.sampler]}): "
+        f"posterior ({result.likelihood}; {result.chains} {units[0]} x {result.draws.shape[1]} "
+        f"{units[1]}, {_SAMPLER_NAMES[result.sampler]}): "
         + ("converged" if result.converged else "NOT CONVERGED"),
     ]
     if result.reason:
