@@ -48,7 +48,7 @@ from .._least_squares.transforms import dphys_du, to_physical, to_unbounded
 from . import diagnostics
 from .priors import Prior, priors_for
 from .smc import Reference, SMCRun, run_smc
-from .space import SamplingSpace
+from .space import NOISE_FACTOR_RANGE, SamplingSpace
 
 __all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
 
@@ -75,8 +75,6 @@ SAMPLING_RTOL = 1e-7
 SAMPLING_MAX_STEPS = 1024
 #: Default warm-up steps per chain (see `_run_hmc`: it starts from the least-squares shape).
 WARMUP = 300
-#: Range of the sampled noise factors (log-uniform prior).
-NOISE_FACTOR_RANGE = (1e-3, 1e3)
 #: Samplers: ``auto`` (= ``smc``, or ``hmc`` when the chains' starts are given), ``smc``,
 #: ``independence`` (values only: every proposal of every chain evaluated in a few large
 #: batches; right only where its t proposal covers the posterior) and ``hmc`` (gradients).
@@ -198,11 +196,11 @@ def _log_density(residuals, names, priors, groups, n_noise, likelihood, nu):
 
 
 def _posterior_terms(names, priors, groups, n_noise, likelihood, nu):
-    """``(z, r) -> log posterior`` given the residuals ``r`` at ``z``'s parameters."""
+    """``(z, r) -> log posterior`` given the residuals ``r`` at ``z``'s parameters (``z``: the
+    fit's ``u`` and the log noise factors)."""
     p = len(names)
-    # Rows with a sigma use factor 1 (index n_noise, a fixed 0 appended to the log factors).
-    index = jnp.asarray(np.where(groups >= 0, groups, n_noise))
     lo, hi = (math.log(v) for v in NOISE_FACTOR_RANGE)
+    log_likelihood = _log_likelihood(groups, n_noise, likelihood, nu)
 
     def log_density(z, r):
         u, log_s = z[:p], z[p:]
@@ -210,13 +208,7 @@ def _posterior_terms(names, priors, groups, n_noise, likelihood, nu):
         if n_noise:
             inside = jnp.all((log_s >= lo) & (log_s <= hi))
             lp = lp + jnp.where(inside, 0.0, -jnp.inf)
-        log_scale = jnp.concatenate([log_s, jnp.zeros(1, z.dtype)])[index]
-        x = r * jnp.exp(-log_scale)
-        if likelihood == "gaussian":
-            ll = -0.5 * x**2 - log_scale
-        else:
-            ll = -0.5 * (nu + 1) * jnp.log1p(x**2 / nu) - log_scale
-        return lp + jnp.sum(ll)
+        return lp + log_likelihood(r, log_s)
 
     return log_density
 
