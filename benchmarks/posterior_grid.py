@@ -196,6 +196,71 @@ def run_case(name, spec, folder, truth_scene):
     return out
 
 
+def sliced_grid(fit, priors, draws, *, slices=60, points=40, half_width=8.0):
+    """The exact posterior on a grid that follows a curved ridge: slices along ``ln C_A`` (the
+    first parameter) over its whole prior range, and in each slice a square grid of
+    ``points^2`` cells over ``|g| <= half_width`` in coordinates
+    ``ln(C_H, f0) = m(t) + L(t) g``, where ``m`` and ``L L^T`` are the local
+    (kernel-weighted) mean and covariance of the other two given ``ln C_A = t`` among
+    ``draws`` (physical, ``(n, 3)``). The draws only place the cells: the density is
+    evaluated exactly on them, and the mass on each slice's faces (``face_mass``) says whether
+    a slice missed part of the posterior. Summaries as
+    `grid_reference` (cells as weighted points, each spread over 2^3 points)."""
+    from fitting._bayesian.posterior import BLOCK, _blocks, _weighted_summary, posterior_setup
+
+    space, batch, _, _ = posterior_setup(fit, priors)
+    evaluate = _blocks(batch, BLOCK)
+    ends = np.array([space._box(i) for i in range(3)])
+    U = np.log(np.asarray(draws, float))
+    lo, hi = ends[0]  # the whole prior range of ln C_A: a tail the draws miss is still here
+    h_t = (hi - lo) / slices
+    t = lo + (np.arange(slices) + 0.5) * h_t
+    offsets = (np.arange(points) + 0.5) / points * 2 * half_width - half_width
+    h_g = offsets[1] - offsets[0]
+    G = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2)
+    width = 0.1 * np.std(U[:, 0]) + 1e-3  # kernel width along t for the local moments
+    log_mass, cells, faces = [], [], []
+    for ti in t:
+        # local moments (beyond the draws' range: those of the nearest draws)
+        log_w = -0.5 * ((U[:, 0] - ti) / width) ** 2
+        w = np.exp(log_w - log_w.max())
+        w = w / w.sum()
+        mean = w @ U[:, 1:]
+        dev = U[:, 1:] - mean
+        cov = (w[:, None] * dev).T @ dev + 1e-10 * np.eye(2)
+        L = np.linalg.cholesky(cov)
+        rest = mean + G @ L.T
+        points_u = np.column_stack([np.full(len(G), ti), rest])
+        s = np.clip((points_u - ends[:, 0]) / (ends[:, 1] - ends[:, 0]), 1e-300, 1 - 1e-16)
+        inside = np.all((points_u > ends[:, 0]) & (points_u < ends[:, 1]), axis=1)
+        X = np.log(s) - np.log1p(-s)
+        lp = evaluate(X) - np.sum(np.log((ends[:, 1] - ends[:, 0]) * s * (1 - s)), axis=1)
+        lp = np.where(inside, lp, -np.inf)
+        log_mass.append(lp + np.log(np.linalg.det(L)))
+        cells.append((points_u, L))
+        edge = (np.abs(G[:, 0]) > half_width - h_g) | (np.abs(G[:, 1]) > half_width - h_g)
+        faces.append(edge)
+    log_mass = np.concatenate(log_mass)
+    mass = np.exp(log_mass - np.max(log_mass))
+    mass /= mass.sum()
+    face = float(mass[np.concatenate(faces)].sum())
+    # each cell's mass over 2^3 points inside it (its parallelogram in ln p)
+    sub_t = np.array([-0.25, 0.25]) * h_t
+    sub_g = np.stack(np.meshgrid([-0.25, 0.25], [-0.25, 0.25], indexing="ij"), -1).reshape(-1, 2)
+    pts, wts = [], []
+    for (points_u, L), m in zip(cells, np.split(mass, slices), strict=True):
+        for dt in sub_t:
+            for dg in sub_g:
+                shift = np.concatenate([[dt], L @ (dg * h_g)])
+                pts.append(np.exp(points_u + shift))
+                wts.append(m / 8)
+    values, weight = np.concatenate(pts), np.concatenate(wts)
+    keep = weight > 1e-14 * weight.max()
+    out = _weighted_summary(fit.params, values[keep], weight[keep] / weight[keep].sum(), None,
+                            face)  # fmt: skip
+    return out
+
+
 def table(rows):
     print("| case | params | sampler | converged | worst error (grid sd) | sd ratio | ESS min "
           "| s | grid self-error |")  # fmt: skip
@@ -247,69 +312,3 @@ def main(argv=None):
 
 if __name__ == "__main__":
     sys.exit(main())
-
-
-def sliced_grid(fit, priors, draws, *, slices=60, points=40, half_width=8.0):
-    """The exact posterior on a grid that follows a curved ridge: slices along ``ln C_A`` (the
-    first parameter) over the range the draws reach, widened by a quarter on each side and
-    clipped to the prior, and in each slice a square grid of ``points^2`` cells over
-    ``|g| <= half_width`` in coordinates ``ln(C_H, f0) = m(t) + L(t) g``, where ``m`` and
-    ``L L^T`` are the local (kernel-weighted) mean and covariance of the other two given
-    ``ln C_A = t`` among ``draws`` (physical, ``(n, 3)``). The draws only place the cells:
-    the density is evaluated exactly on them, and the mass on each slice's faces
-    (``face_mass``) says whether a slice missed part of the posterior. Summaries as
-    `grid_reference` (cells as weighted points, each spread over 2^3 points)."""
-    from fitting._bayesian.posterior import BLOCK, _blocks, _weighted_summary, posterior_setup
-
-    space, batch, _, _ = posterior_setup(fit, priors)
-    evaluate = _blocks(batch, BLOCK)
-    ends = np.array([space._box(i) for i in range(3)])
-    U = np.log(np.asarray(draws, float))
-    lo, hi = np.quantile(U[:, 0], [0.0005, 0.9995])
-    lo, hi = max(ends[0, 0], lo - 0.25 * (hi - lo)), min(ends[0, 1], hi + 0.25 * (hi - lo))
-    h_t = (hi - lo) / slices
-    t = lo + (np.arange(slices) + 0.5) * h_t
-    offsets = (np.arange(points) + 0.5) / points * 2 * half_width - half_width
-    h_g = offsets[1] - offsets[0]
-    G = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2)
-    width = 0.1 * np.std(U[:, 0]) + 1e-3  # kernel width along t for the local moments
-    log_mass, cells, faces = [], [], []
-    for ti in t:
-        # local moments (beyond the draws' range: those of the nearest draws)
-        log_w = -0.5 * ((U[:, 0] - ti) / width) ** 2
-        w = np.exp(log_w - log_w.max())
-        w = w / w.sum()
-        mean = w @ U[:, 1:]
-        dev = U[:, 1:] - mean
-        cov = (w[:, None] * dev).T @ dev + 1e-10 * np.eye(2)
-        L = np.linalg.cholesky(cov)
-        rest = mean + G @ L.T
-        points_u = np.column_stack([np.full(len(G), ti), rest])
-        s = np.clip((points_u - ends[:, 0]) / (ends[:, 1] - ends[:, 0]), 1e-300, 1 - 1e-16)
-        inside = np.all((points_u > ends[:, 0]) & (points_u < ends[:, 1]), axis=1)
-        X = np.log(s) - np.log1p(-s)
-        lp = evaluate(X) - np.sum(np.log((ends[:, 1] - ends[:, 0]) * s * (1 - s)), axis=1)
-        lp = np.where(inside, lp, -np.inf)
-        log_mass.append(lp + np.log(np.linalg.det(L)))
-        cells.append((points_u, L))
-        edge = (np.abs(G[:, 0]) > half_width - h_g) | (np.abs(G[:, 1]) > half_width - h_g)
-        faces.append(edge)
-    log_mass = np.concatenate(log_mass)
-    mass = np.exp(log_mass - np.max(log_mass))
-    mass /= mass.sum()
-    face = float(mass[np.concatenate(faces)].sum())
-    # each cell's mass over 2^3 points inside it (its parallelogram in ln p)
-    sub_t = np.array([-0.25, 0.25]) * h_t
-    sub_g = np.stack(np.meshgrid([-0.25, 0.25], [-0.25, 0.25], indexing="ij"), -1).reshape(-1, 2)
-    pts, wts = [], []
-    for (points_u, L), m in zip(cells, np.split(mass, slices), strict=True):
-        for dt in sub_t:
-            for dg in sub_g:
-                shift = np.concatenate([[dt], L @ (dg * h_g)])
-                pts.append(np.exp(points_u + shift))
-                wts.append(m / 8)
-    values, weight = np.concatenate(pts), np.concatenate(wts)
-    keep = weight > 1e-14 * weight.max()
-    out = _weighted_summary(fit.params, values[keep], weight[keep] / weight[keep].sum(), None,
-                            face)  # fmt: skip
-    return out

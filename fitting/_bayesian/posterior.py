@@ -381,7 +381,9 @@ def judge(summary: Mapping[str, dict], divergences: int) -> list[str]:
     return problems
 
 
-def _summarize(x: np.ndarray) -> dict:
+def _summarize(x: np.ndarray, rank: bool = False) -> dict:
+    """Summary of one quantity's draws ``x (chains, draws)``; ``rank``: the rank-normalized
+    R-hat and bulk ESS (Vehtari et al. 2021; SMC) instead of the classic split R-hat and ESS."""
     flat = x.reshape(-1)
     q05, median, q95 = np.quantile(flat, [0.05, 0.5, 0.95])
     return {
@@ -390,8 +392,8 @@ def _summarize(x: np.ndarray) -> dict:
         "sd": float(np.std(flat, ddof=1)),
         "q05": float(q05),
         "q95": float(q95),
-        "rhat": split_rhat(x),
-        "ess": effective_sample_size(x),
+        "rhat": diagnostics.rank_rhat(x) if rank else split_rhat(x),
+        "ess": diagnostics.ess_bulk(x) if rank else effective_sample_size(x),
         "ess_tail": diagnostics.ess_tail(x),
     }
 
@@ -1015,22 +1017,6 @@ def _blocks(log_density, block):
     return evaluate
 
 
-def _smc_summary(x: np.ndarray) -> dict:
-    """Summary of one quantity's draws ``x (chains, draws)``."""
-    flat = x.reshape(-1)
-    q05, median, q95 = np.quantile(flat, [0.05, 0.5, 0.95])
-    return {
-        "mean": float(np.mean(flat)),
-        "median": float(median),
-        "sd": float(np.std(flat, ddof=1)),
-        "q05": float(q05),
-        "q95": float(q95),
-        "rhat": diagnostics.rank_rhat(x),
-        "ess": diagnostics.ess_bulk(x),
-        "ess_tail": diagnostics.ess_tail(x),
-    }
-
-
 def _smc_problems(summary: Mapping[str, dict], divergences: int = 0) -> list[str]:
     """Why a run cannot be called good (empty if it can): a rank-normalized R-hat above
     :data:`MAX_RHAT` (or undefined), a bulk or tail ESS below :data:`MIN_ESS`, or a divergent
@@ -1121,7 +1107,7 @@ def _smc_summaries(space: SamplingSpace, run: SMCRun) -> dict:
     floor = float(np.sum(run.final_ess))
     out = {}
     for i in range(space.dim):
-        s = _smc_summary(judged[..., i])
+        s = _summarize(judged[..., i], rank=True)
         s["ess"], s["ess_tail"] = min(s["ess"], floor), min(s["ess_tail"], floor)
         out[i] = s
     return out
