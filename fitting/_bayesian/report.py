@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -141,11 +142,15 @@ def write_draws(path, result: PosteriorResult) -> None:
         raise FitError('--draws needs arviz: pip install "jaximpact[posterior]"') from None
     posterior = {n: result.draws[..., i] for i, n in enumerate(result.params)}
     posterior.update({n: result.noise_draws[..., j] for j, n in enumerate(result.noise)})
-    data = az.from_dict(
-        posterior=posterior,
-        sample_stats={"lp": result.log_density},
-        attrs={"likelihood": result.likelihood, "status": result.status},
-    )
+    with warnings.catch_warnings():
+        # arviz guesses that more chains than draws is a transposed array; here the shape is
+        # (chains, draws) by construction (short SMC runs extended to many populations).
+        warnings.filterwarnings("ignore", message="More chains", category=UserWarning)
+        data = az.from_dict(
+            posterior=posterior,
+            sample_stats={"lp": result.log_density},
+            attrs={"likelihood": result.likelihood, "status": result.status},
+        )
     with atomic_output(path, "draws file") as temp:
         data.to_netcdf(str(temp))
 
