@@ -47,7 +47,7 @@ __all__ = ["Reference", "SMCRun", "run_smc"]
 #: where the reference already covers the posterior.
 TARGET_ESS = 0.5
 FINAL_ESS = 0.25
-FINAL_KHAT = 0.5
+FINAL_KHAT = 0.7
 #: Moves at b = 1 continue until every coordinate's correlation with the positions at the
 #: last resampling is below this; on the way to b = 1, below STAGE_DECORRELATION.
 DECORRELATION = 0.1
