@@ -608,17 +608,11 @@ def _weighted_t(points, log_w, fallback_cov, inflation):
 
 
 def _evaluate(log_density, Z, block, progress_bar):
-    """Log densities of the rows of ``Z``, ``block`` rows per call (one compiled shape: the
-    last block is padded with copies of its first row)."""
-    out = []
-    for i in range(0, len(Z), block):
-        part = Z[i : i + block]
-        pad = block - len(part)
-        if pad:
-            part = np.concatenate([part, np.repeat(part[:1], pad, axis=0)])
-        out.append(np.asarray(log_density(jnp.asarray(part)))[: block - pad])
-        progress_bar.update(block - pad)
-    return np.nan_to_num(np.concatenate(out), nan=-np.inf)
+    """Log densities of the rows of ``Z`` in blocks of ``block`` rows (:func:`_blocks`), NaN
+    as ``-inf``, counted on ``progress_bar``."""
+    out = _blocks(log_density, block)(Z)
+    progress_bar.update(len(Z))
+    return np.nan_to_num(out, nan=-np.inf)
 
 
 def _run_independence(
