@@ -11,6 +11,7 @@ from fitting._bayesian.diagnostics import (
     ess_bulk,
     ess_tail,
     mcse_quantile,
+    pareto_khat,
     rank_rhat,
     split_rhat,
 )
@@ -138,3 +139,26 @@ def test_mcse_quantile_of_iid_draws():
     p, q = 0.5, 0.0
     expected = np.sqrt(p * (1 - p) / x.size) * np.sqrt(2 * np.pi) * np.exp(q**2 / 2)
     assert mcse_quantile(x, p) == pytest.approx(expected, rel=0.3)
+
+
+@pytest.mark.parametrize("shape", [0.2, 0.5, 0.9])
+def test_pareto_khat_recovers_the_shape_of_pareto_weights(shape):
+    """Weights with a Pareto tail of shape k (survival x^(-1/k)): the estimate is k."""
+    rng = np.random.default_rng(3)
+    weights = rng.uniform(size=200_000) ** -shape
+    assert pareto_khat(weights) == pytest.approx(shape, abs=0.03)
+
+
+def test_pareto_khat_agrees_with_blackjax():
+    """The numpy estimator against blackjax's (JAX) one, which the thresholds were set with."""
+    import jax
+    from blackjax import pareto_khat as blackjax_khat
+
+    assert jax.config.jax_enable_x64  # (the suite's conftest)
+    rng = np.random.default_rng(4)
+    for n, scale in [(50, 1.0), (1000, 2.0), (4000, 0.5), (4000, 4.0)]:
+        log_w = scale * rng.standard_normal(n)
+        w = np.exp(log_w - log_w.max())
+        expected = float(blackjax_khat(jax.numpy.asarray(w), tail="upper"))
+        assert pareto_khat(w) == pytest.approx(expected, abs=1e-9)
+    assert pareto_khat(np.ones(100)) == 0.0

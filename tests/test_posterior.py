@@ -18,6 +18,7 @@ import pytest
 import fitting
 import jaximpact
 from fitting import _design
+from fitting._bayesian import diagnostics
 from fitting._bayesian import posterior as _posterior
 from fitting._bayesian.priors import Prior, parse_prior, priors_for
 from fitting._bayesian.report import add_to_result_dict
@@ -197,14 +198,14 @@ def test_refusal_on_rhat_and_divergences():
     shift ``d`` in one of 8 half-chains gives ``R^2 ~ 1 + d^2 / 8``); one divergence refuses."""
     rng = np.random.default_rng(0)
     good = rng.standard_normal((4, 1000))
-    assert abs(_posterior.split_rhat(good) - 1) < 0.01
-    assert _posterior.effective_sample_size(good) == pytest.approx(4000, rel=0.15)
-    stats = {"C_A": {"rhat": _posterior.split_rhat(good)}}
+    assert abs(diagnostics.split_rhat(good) - 1) < 0.01
+    assert diagnostics.ess(good) == pytest.approx(4000, rel=0.15)
+    stats = {"C_A": {"rhat": diagnostics.split_rhat(good)}}
     assert _posterior.judge(stats, 0) == []
     assert "divergent" in _posterior.judge(stats, 1)[0]
     bad = good.copy()
     bad[0] += 1.0
-    rhat = _posterior.split_rhat(bad)
+    rhat = diagnostics.split_rhat(bad)
     assert 1.03 < rhat < 1.15
     assert "R-hat of f0" in _posterior.judge({"C_A": stats["C_A"], "f0": {"rhat": rhat}}, 0)[0]
     assert _posterior.judge({"C_A": {"rhat": math.nan}}, 0)

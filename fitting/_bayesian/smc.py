@@ -39,6 +39,8 @@ import numpy as np
 from scipy.special import logsumexp
 from tqdm.auto import tqdm
 
+from .diagnostics import pareto_khat
+
 __all__ = ["Reference", "SMCRun", "run_smc"]
 
 #: Each tempering step keeps this fraction of the particles as effective sample size; the
@@ -181,12 +183,10 @@ def _systematic(rng, log_w: np.ndarray, n: int) -> np.ndarray:
 
 
 def _khat(log_w: np.ndarray) -> float:
-    from blackjax import pareto_khat
-
     finite = log_w[np.isfinite(log_w)]
     if finite.size < 20:
         return math.inf
-    return float(pareto_khat(np.exp(finite - np.max(finite)), tail="upper"))
+    return pareto_khat(np.exp(finite - np.max(finite)))
 
 
 def _covariance(X: np.ndarray) -> np.ndarray:
@@ -329,9 +329,7 @@ def run_smc(
     t0 = time.perf_counter()
     K, N = populations, particles
     d = len(reference.mean)
-    bar = tqdm(
-        desc=description, unit="point", disable=not progress, file=sys.stderr, leave=False
-    )
+    bar = tqdm(desc=description, unit="point", disable=not progress, file=sys.stderr, leave=False)
     evaluations = 0
 
     def run(X):
