@@ -402,7 +402,7 @@ def _check_fit_outputs(args, posterior_outputs) -> None:
         (args.profile_plot, "profile plot"),
         *posterior_outputs,
     ):
-        if path:
+        if path is not None:  # an empty path is refused, not ignored
             prepare_output(path, what)
 
 
@@ -461,7 +461,7 @@ def _write_outputs(outputs) -> None:
     from jaximpact._io.paths import write_failed
 
     for path, write in outputs:
-        if path:
+        if path is not None:
             try:
                 write(path)
             except OSError as err:

@@ -4,7 +4,7 @@ commands:
   simulate  impacts of a scene: a table on screen, a results CSV with -o
   sweep     millions of impacts (a file or a grid) to a resumable Parquet dataset
   fit       identify contact parameters (C_A, C_H, f0, friction, ...) from rebound data;
-            --posterior (NUTS), --profile NAME
+            --posterior (sequential Monte Carlo), --profile NAME
   design    choose the impacts to measure next (D-optimal, from candidate rows)
   wall-law  a wall law for CFD codes: capture speed, rebound tables, C/OpenFOAM/Fluent code
   show      a scene as resolved: derived quantities, solver, the terms it compiles
@@ -132,7 +132,7 @@ def cmd_simulate(args) -> int:
             omega0=np.atleast_1d(float(i.omega0)),
             columns=("speed", "angle_deg", "omega0"),
         )
-    if args.output:
+    if args.output is not None:  # an empty path is refused, not ignored
         prepare_output(args.output, "results CSV")
 
     result = _simulate_from_cache(scene, table)

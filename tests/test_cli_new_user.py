@@ -95,6 +95,11 @@ def test_missing_and_unwritable_files_exit_2_before_computing(tmp_path):
     assert "nope.csv" in line and "not found" in line
     line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "-o", target))
     assert str(target) in line
+    # An empty path (`-o "$OUT"` with OUT unset) is a bad path, not "no output".
+    line = one_line_error(run("simulate", "-o", ""))
+    assert "empty path" in line and "results CSV" in line
+    line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "--plot", ""))
+    assert "empty path" in line and "plot" in line
     # Every one of these stopped before simulating: together well under one compilation.
     assert time.perf_counter() - start < 120
 

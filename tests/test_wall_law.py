@@ -315,6 +315,9 @@ def test_command_bad_input_exits_2_with_one_line(args, words, tmp_path, capsys):
     code, _, err = cli(["wall-law", *args, "-o", str(tmp_path / "out")], capsys)
     assert code == 2
     assert err.count("\n") == 1 and words in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()  # nothing left behind
+    if args[0] == "--angle" and args[1] == "95":
+        assert "95 is outside" in err  # the bad value named
 
 
 def test_command_output_that_is_a_file(tmp_path, capsys):

@@ -1,1 +1,1 @@
-"""Bayesian identification: priors, the posterior sampler (HMC/NUTS) and its report."""
+"""Bayesian identification: priors, the posterior samplers (SMC by default; independence Metropolis, HMC) and their report."""

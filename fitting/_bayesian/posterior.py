@@ -779,9 +779,12 @@ def sample_posterior(
     - `jitter`: the chains start this many standard errors (least squares) from the optimum.
     - `target_accept`: the step-size adaptation's target acceptance rate.
     - `progress`: progress bars on stderr.
-    - `sampler`: ``"auto"`` (default): the independence sampler, or HMC where its proposal
-      misses part of the posterior (Pareto k > 0.7); ``"independence"``; ``"hmc"``
-      (see :data:`SAMPLERS` and the module docstring).
+    - `sampler`: ``"auto"`` (default) or ``"smc"``: tempered sequential Monte Carlo
+      (``fitting._bayesian.smc``), from a t on the fit where its importance weights show
+      that it covers the posterior, else from the prior; ``"independence"`` (an independence
+      Metropolis sampler with a t proposal on the fit, right only where the posterior is
+      nearly Gaussian); ``"hmc"`` (see :data:`SAMPLERS` and the module docstring). With
+      SMC, `chains` is the number of independent populations and `draws` their particles.
     - `rtol`: solver tolerance of the sampler's evaluations (float64; atol ``rtol / 100``),
       where the scene leaves its own unset; None: the scene's (the fit's) tolerance.
 

@@ -115,6 +115,8 @@ def prepare_output(path, what: str = "output file") -> Path:
     directory, a device, a pipe or a socket, a parent that is a file, and a directory where no
     file can be created (probed with a temporary file, removed at once).
     """
+    if not str(path).strip():  # e.g. `-o "$OUT"` with OUT unset
+        raise FileProblem("''", f"is an empty path; give a file name for the {what}")
     p = Path(path)
     if p.is_dir():
         raise FileProblem(path, f"is a directory; give a file name for the {what}")

@@ -244,12 +244,12 @@ def _check_axis(name: str, values, lo=None, hi=None, lo_open=False, unit=""):
         raise SceneError(f"{name}: values must be finite")
     if np.any(np.diff(np.sort(v)) == 0):
         raise SceneError(f"{name}: values must be distinct")
-    if lo is not None and (np.any(v <= lo) if lo_open else np.any(v < lo)):
+    low = (v <= lo if lo_open else v < lo) if lo is not None else np.zeros(v.shape, bool)
+    bad = low | (v > hi if hi is not None else False)
+    if np.any(bad):
         side = "(" if lo_open else "["
-        raise SceneError(f"{name}: values must be in {side}{lo:g}, {hi:g}] {unit}".rstrip())
-    if hi is not None and np.any(v > hi):
-        side = "(" if lo_open else "["
-        raise SceneError(f"{name}: values must be in {side}{lo:g}, {hi:g}] {unit}".rstrip())
+        allowed = f"{side}{lo:g}, {hi:g}] {unit}".rstrip()
+        raise SceneError(f"{name}: {v[bad][0]:g} is outside the allowed range {allowed}")
     return np.sort(v)
 
 

@@ -92,6 +92,7 @@ def cmd_wall_law(args) -> int:
     directory = Path(out)
     if directory.exists() and not directory.is_dir():
         raise FileProblem(out, "is a file; -o names a directory for the wall law's files")
+    created = not directory.exists()
     prepare_output(directory / "wall_law.nc", "NetCDF file")
 
     scene_name = describe_scene_source(args.scene)
@@ -108,7 +109,11 @@ def cmd_wall_law(args) -> int:
             refine=not args.no_refine,
             progress=progress,
         )
-    except WallLawError as err:
+    except (WallLawError, SceneError) as err:
+        if created and not any(directory.iterdir()):  # leave nothing behind
+            directory.rmdir()
+        if isinstance(err, SceneError):
+            raise
         print(f"error: {err}", file=sys.stderr)
         return 1
     write_netcdf(directory / "wall_law.nc", law, scene_name)
