@@ -34,3 +34,10 @@ from .wall_law import capture_speed as capture_speed
 from .wall_law import wall_law as wall_law
 
 __version__ = "0.1.0"
+
+# JAX's persistent compilation cache on by default (``$JAXIMPACT_CACHE_DIR``, else the user
+# cache directory; ``JAXIMPACT_CACHE_DIR=off`` or a cache directory of the user's own keeps it
+# as it is): the first call of a new process loads what an earlier one compiled.
+from ._io.cache import enable_default_cache as _enable_default_cache  # noqa: E402
+
+_enable_default_cache()

@@ -281,6 +281,27 @@ def test_cli_cache_setting(tmp_path, setting):
     assert not (tmp_path / "xdg").exists()
 
 
+@pytest.mark.parametrize("setting", ["path", "off", "jax's own"])
+def test_import_turns_the_cache_on_unless_told_otherwise(tmp_path, setting):
+    """``import jaximpact`` in a fresh process: the cache in $JAXIMPACT_CACHE_DIR; none with
+    "off"; a JAX cache directory set before the import is kept."""
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "xdg")}
+    env["JAXIMPACT_CACHE_DIR"] = "off" if setting == "off" else str(tmp_path / "ours")
+    own = str(tmp_path / "own")
+    code = "import jax\n"
+    if setting == "jax's own":
+        code += f"jax.config.update('jax_compilation_cache_dir', {own!r})\n"
+    code += "import jaximpact\nprint(jax.config.jax_compilation_cache_dir)\n"
+    run = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    expected = {"path": str(tmp_path / "ours"), "off": "None", "jax's own": own}[setting]
+    assert run.stdout.strip() == expected
+    assert (tmp_path / "ours").is_dir() == (setting == "path")
+    assert not (tmp_path / "xdg").exists()
+
+
 def test_cli_computation_failure_exits_1(monkeypatch, capsys):
     def boom(args):
         raise RuntimeError("XLA ran out of luck\nsecond line")

@@ -2,7 +2,9 @@
 
 Every ``jaximpact`` command compiles its solve (seconds to tens of seconds); with the cache on,
 a later process with the same program (same shapes, settings and JAX version) loads it from
-disk instead. The CLI turns it on by default; API users call :func:`enable_compilation_cache`.
+disk instead. It is on by default, for the CLI and the API alike: ``import jaximpact`` turns
+it on (:func:`enable_default_cache`) unless JAX already has a cache directory (the user's own
+choice is kept) or ``JAXIMPACT_CACHE_DIR=off``; :func:`enable_compilation_cache` moves it.
 
 Where: ``$JAXIMPACT_CACHE_DIR`` if set (``off`` disables the cache), else
 ``<user cache dir>/jaximpact/jax-compilation-cache`` (platformdirs: ``~/.cache/...`` on Linux,
@@ -22,6 +24,7 @@ __all__ = [
     "compiled_program",
     "code_fingerprint",
     "enable_compilation_cache",
+    "enable_default_cache",
     "runtime_checks_as_nan",
 ]
 
@@ -88,6 +91,21 @@ def enable_compilation_cache(path=None) -> Path | None:
     # -1: no size threshold (0 would let JAX pick its own default minimum).
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     return directory
+
+
+def enable_default_cache() -> Path | None:
+    """The cache on, where nobody chose otherwise (called by ``import jaximpact``): a
+    notebook's second kernel and a script's second run then load their programs instead of
+    compiling them (BENCHMARKS.md, "First result"). Left alone where JAX already has a cache
+    directory or ``$JAXIMPACT_CACHE_DIR`` is ``off``; any failure leaves it off, silently."""
+    try:
+        import jax
+
+        if jax.config.jax_compilation_cache_dir:
+            return None
+        return enable_compilation_cache()
+    except Exception:  # never let the cache stop an import
+        return None
 
 
 # --- traced programs -------------------------------------------------------------------------
