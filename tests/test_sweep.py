@@ -220,6 +220,71 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(impacts, reference, tm
     assert not [p for p in out.iterdir() if p.name.endswith(".tmp")]
 
 
+def test_chosen_columns_are_stored_read_and_kept_when_continuing(impacts, reference, tmp_path):
+    """``columns=``: the part files hold the inputs, status and the chosen columns, with the
+    reference's numbers; continuing takes the sweep's choice, another choice is refused."""
+    out = tmp_path / "few.parquet"
+    first = run_sweep(
+        read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False,
+        columns="contact_time, cor_n", process_index=0, process_count=1,
+    )  # fmt: skip
+    assert first.complete
+    got = read_sweep_columns(out)
+    inputs = ["speed", "angle_deg", "omega0", "f0"]
+    assert list(got) == [*inputs, "status", "cor_n", "contact_time"]  # status first, then order
+    assert_same(got, {k: reference[1][k] for k in got})
+    schema = pq.read_schema(out / "part-000000.parquet")
+    assert schema.names == list(got)
+    again = run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False)
+    assert again.chunks_run == 0 and again.complete  # its own columns, not all of them
+    with pytest.raises(SweepError, match="result_columns"):
+        run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False,
+                  columns=["cor_n"])  # fmt: skip
+    with pytest.raises(SweepError, match="'bogus' not a result column"):
+        run_sweep(read_impacts_file(impacts), tmp_path / "new", columns="bogus,cor_n")
+    assert not (tmp_path / "new").exists()
+
+
+def test_writer_commits_in_order_while_writes_overlap():
+    """Part files are written on several threads at once (the later ones may finish first);
+    the manifest records them in submission order, at most ``threads`` held at a time."""
+    import threading
+    import time
+
+    from jaximpact.sweep._writer import _Writer
+
+    committed, in_flight, peak = [], [0], [0]
+    lock = threading.Lock()
+
+    def write(chunk):
+        with lock:
+            in_flight[0] += 1
+            peak[0] = max(peak[0], in_flight[0])
+        time.sleep(0.02 * (4 - chunk % 4))  # later chunks of each group finish first
+        with lock:
+            in_flight[0] -= 1
+
+    writer = _Writer(write, committed.append, threads=3)
+    for chunk in range(12):
+        writer.submit(chunk)
+    writer.finish()
+    writer.close()
+    assert committed == list(range(12)) and peak[0] == 3
+
+    def broken(chunk):
+        if chunk == 2:
+            raise OSError("disk full")
+
+    committed.clear()
+    writer = _Writer(broken, committed.append, threads=2)
+    with pytest.raises(OSError, match="disk full"):
+        for chunk in range(6):
+            writer.submit(chunk)
+        writer.finish()
+    writer.close()
+    assert committed == [0, 1]  # nothing after the failed chunk is recorded
+
+
 def test_rerunning_a_finished_sweep_does_nothing(impacts, reference, tmp_path):
     out = tmp_path / "copy"
     shutil.copytree(reference[0], out)

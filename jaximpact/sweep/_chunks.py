@@ -8,9 +8,7 @@ import json
 
 import numpy as np
 
-from .._io.tables import (
-    IMPACT_COLUMNS,
-)
+from .._io.tables import IMPACT_COLUMNS, RESULT_COLUMNS
 from ._store import FORMAT
 
 _RUNNERS: dict = {}
@@ -162,7 +160,10 @@ def _model_config(scene, source, chunk_size: int, dtype):
     return base, terms, cfg
 
 
-def _settings(scene_path, source, chunk_size: int, dtype) -> tuple[dict, str]:
+def _settings(scene_path, source, chunk_size: int, dtype, result_columns=None) -> tuple[dict, str]:
+    """The sweep's settings and their digest; ``result_columns``: a chosen subset (recorded,
+    so that resuming with other columns is refused), or None for every column (the settings of
+    sweeps begun before the choice existed)."""
     from .. import __version__
     from .._io.scene_files import describe_scene_source
     from .._io.scene_files import scene_path as resolve_scene
@@ -180,6 +181,8 @@ def _settings(scene_path, source, chunk_size: int, dtype) -> tuple[dict, str]:
         "n_chunks": -(-source.n // chunk_size),
         "columns": list(source.columns),
     }
+    if result_columns is not None and tuple(result_columns) != RESULT_COLUMNS:
+        settings["result_columns"] = list(result_columns)
     # The hash covers what determines the numbers; not the scene's path (moving a file is fine).
     hashed = {k: v for k, v in settings.items() if k != "scene"}
     digest = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()

@@ -39,7 +39,7 @@ from ._store import (
     _result_columns,
     _setting_differences,
 )
-from ._writer import _chunk_table, _Writer
+from ._writer import _chunk_table, _Writer, parquet_options, writer_threads
 
 DEFAULT_CHUNK_SIZE = 8192
 # float32: a chunk computes ~7x faster than a float64 one, and a chunk's fixed costs (dispatch,
@@ -110,6 +110,7 @@ def run_sweep(
     progress: bool = True,
     process_index: int | None = None,
     process_count: int | None = None,
+    columns=None,
 ) -> SweepSummary:
     """Run (or continue) a sweep, writing each finished chunk to ``output``.
 
@@ -129,6 +130,9 @@ def run_sweep(
         process_index, process_count: this process's share (chunks ``i`` with
             ``i % process_count == process_index``); default ``jax.process_index()`` and
             ``jax.process_count()`` (0 and 1 without ``jax.distributed``).
+        columns: the result columns to store (names of ``RESULT_COLUMNS``; ``status`` is
+            always kept), or None for all of them (the sweep's own when continuing one).
+            Fewer columns, fewer bytes per row (README, "Large sweeps"); part of the settings.
 
     Returns:
         SweepSummary: what this call computed.
@@ -154,7 +158,10 @@ def run_sweep(
         )
     index, count = _process_share(chunk_size, devices, process_index, process_count)
     scene = load_scene(scene_path)
-    settings, digest = _settings(scene_path, source, chunk_size, dtype)
+    chosen = result_columns_for(columns)
+    if chosen is None and not restart:  # continuing: the sweep's own choice
+        chosen = _existing_result_columns(Path(output))
+    settings, digest = _settings(scene_path, source, chunk_size, dtype, chosen)
     n_chunks = settings["n_chunks"]
 
     directory = Path(output)
@@ -165,7 +172,7 @@ def run_sweep(
         manifests = {}
     else:
         manifests = _continued_manifests(directory, settings, digest, index, count)
-    result_columns = _result_columns(manifests)
+    result_columns = chosen or _result_columns(manifests)
     done = {int(c) for _, m in manifests.values() for c in m["completed"]}
     own_manifest = manifests[index][1] if index in manifests else {"completed": []}
     own_completed = sorted(int(c) for c in own_manifest["completed"])
@@ -188,13 +195,40 @@ def run_sweep(
     )  # fmt: skip
     bar = _progress_bar(source, chunk_size, mine, todo, progress, directory, index, count)
     pipeline.run(todo, bar)
+    legacy = chosen is None and result_columns != RESULT_COLUMNS  # begun before failure_reason
     return _summary(directory, source, chunk_size, n_chunks, mine, todo, pipeline, result_columns,
-                    t_start, len(devices))  # fmt: skip
+                    t_start, len(devices), legacy)  # fmt: skip
+
+
+def result_columns_for(columns) -> tuple[str, ...] | None:
+    """The stored result columns for the user's choice ``columns`` (names, or one string of
+    comma-separated names): ``status`` first, then the others in ``RESULT_COLUMNS`` order;
+    None for None (all columns)."""
+    if columns is None:
+        return None
+    names = [c.strip() for c in columns.split(",")] if isinstance(columns, str) else list(columns)
+    names = [c for c in names if c]
+    unknown = [c for c in names if c not in RESULT_COLUMNS]
+    if unknown or not names:
+        raise SweepError(
+            f"columns: {', '.join(map(repr, unknown)) or 'none given'} not a result column; "
+            f"allowed: {', '.join(RESULT_COLUMNS)}"
+        )
+    return tuple(c for c in RESULT_COLUMNS if c == "status" or c in names)
+
+
+def _existing_result_columns(directory: Path) -> tuple[str, ...] | None:
+    """The result columns a sweep in ``directory`` was begun with, where it chose a subset."""
+    for _, manifest in _load_manifests(directory).values() if directory.is_dir() else ():
+        chosen = manifest.get("settings", {}).get("result_columns")
+        if chosen:
+            return tuple(chosen)
+    return None
 
 
 def _summary(
     directory, source, chunk_size, n_chunks, mine, todo, pipeline, result_columns, t_start,
-    devices,
+    devices, legacy,
 ) -> SweepSummary:  # fmt: skip
     """What this call computed, and what the sweep (all processes' manifests) holds now."""
     final = _load_manifests(directory)
@@ -217,7 +251,7 @@ def _summary(
         complete=finished >= set(range(n_chunks)),
         impacts_done=sum(min(chunk_size, source.n - c * chunk_size) for c in finished),
         failures=failures,
-        legacy_columns=result_columns != RESULT_COLUMNS,
+        legacy_columns=legacy,
     )
 
 
@@ -330,6 +364,7 @@ class _Pipeline:
         self.kill_after = None if kill_after is None else int(kill_after)
         self.failed = self.impacts_run = 0
         self.bar = None
+        self.threads = writer_threads()
 
     def launch(self, chunk: int):
         """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
@@ -338,9 +373,21 @@ class _Pipeline:
         )
         return chunk, valid, rows, self.dispatcher.submit(_dispatch, self.fn, self.sharding, args)
 
-    def write(self, chunk: int, valid: int, table, counts: dict) -> None:
-        """In the writer thread: the part file, then the manifest that lists it."""
-        _atomic_write_table(self.directory / _part_name(chunk), table)
+    def write(self, chunk: int, valid: int, rows: dict, status, values) -> None:
+        """On a writer thread: the chunk's table and part file."""
+        table = _chunk_table(
+            rows, self.source.columns, status, values, self.manifest["settings_hash"],
+            self.result_columns,
+        )  # fmt: skip
+        _atomic_write_table(
+            self.directory / _part_name(chunk),
+            table,
+            **parquet_options(self.source.columns, self.result_columns),
+        )
+
+    def commit(self, chunk: int, valid: int, rows: dict, status, values) -> None:
+        """On this thread, in chunk order, after its part file: the manifest that lists it."""
+        counts = _failure_counts(status)
         if self.kill_after is not None:
             if len(self.own_completed) - self.skipped_own >= self.kill_after:
                 os.kill(os.getpid(), signal.SIGKILL)  # test hook: die before the manifest update
@@ -363,19 +410,15 @@ class _Pipeline:
         self.bar.update(valid)
 
     def hand_over(self, chunk: int, valid: int, rows: dict, result) -> None:
-        """Wait for the chunk, convert it and give it to the writer."""
+        """Wait for the chunk, copy it to the host and give it to the writers."""
         status, values = _fetch(result.result(), valid)
-        table = _chunk_table(
-            rows, self.source.columns, status, values, self.manifest["settings_hash"],
-            self.result_columns,
-        )  # fmt: skip
-        self.writer.submit(chunk, valid, table, _failure_counts(status))
+        self.writer.submit(chunk, valid, rows, status, values)
 
     def run(self, todo, bar) -> None:
         """Compute and write the chunks ``todo``, in order."""
         self.bar = bar
         pending = None
-        self.writer = _Writer(self.write)
+        self.writer = _Writer(self.write, self.commit, self.threads)
         # JAX runs a program on one CPU device asynchronously, but the call of a program
         # sharded over several CPU devices returns only when the chunk is done (measured):
         # calls from a thread of their own keep this thread free to fetch and convert the

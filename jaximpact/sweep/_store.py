@@ -53,13 +53,14 @@ def _is_ours(name: str) -> bool:
     return bool(_PART.match(name) or _MANIFEST.match(name) or _TEMP.match(name))
 
 
-def _atomic_write_table(path: Path, table) -> None:
-    """Write a Parquet file so that readers see either nothing/the old file or the whole file."""
+def _atomic_write_table(path: Path, table, **options) -> None:
+    """Write a Parquet file so that readers see either nothing/the old file or the whole file
+    (``options``: of ``pyarrow.parquet.write_table``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    buffer = pa.BufferOutputStream()  # one chunk's file: a few MB at most
-    pq.write_table(table, buffer)
+    buffer = pa.BufferOutputStream()  # one chunk's file: tens of MB at most
+    pq.write_table(table, buffer, **options)
     atomic_write_bytes(path, buffer.getvalue().to_pybytes())
 
 
@@ -284,7 +285,7 @@ def _normalized(table, file: Path, target):
     sweep begun before it existed, units attached, file metadata dropped."""
     import pyarrow as pa
 
-    if "failure_reason" not in table.column_names:
+    if "failure_reason" in target.names and "failure_reason" not in table.column_names:
         table = table.append_column("failure_reason", pa.nulls(table.num_rows, pa.string()))
     try:
         return pa.Table.from_arrays([table.column(n) for n in target.names], schema=target)
@@ -301,7 +302,8 @@ def read_sweep(path, *, allow_partial: bool = False):
             chunks are absent) instead of raising.
 
     Returns:
-        pyarrow.Table: the input columns, then :data:`~jaximpact.tables.RESULT_COLUMNS`, units
+        pyarrow.Table: the input columns, then :data:`~jaximpact.tables.RESULT_COLUMNS` (or
+        the sweep's chosen ones: ``run_sweep(columns=...)``), units
         as field metadata; ``failure_reason`` is null unless ``status`` is ``failed`` (and for
         every row of a sweep begun before the column existed).
 
@@ -319,7 +321,7 @@ def read_sweep(path, *, allow_partial: bool = False):
             f"{path}: sweep incomplete: {len(missing)} of {settings['n_chunks']} chunks not done "
             f"(first: {missing[0]}); run the same command again to finish it"
         )
-    target = _schema(settings["columns"])
+    target = _schema(settings["columns"], settings.get("result_columns", RESULT_COLUMNS))
     tables = []
     for chunk in done:
         file = Path(path) / _part_name(chunk)
@@ -363,7 +365,7 @@ def iter_chunks(path) -> Iterator:
     import pyarrow.parquet as pq
 
     settings, done = _merged(path)
-    target = _schema(settings["columns"])
+    target = _schema(settings["columns"], settings.get("result_columns", RESULT_COLUMNS))
     for chunk in done:
         file = Path(path) / _part_name(chunk)
         yield _normalized(pq.read_table(file), file, target)

@@ -1,12 +1,46 @@
-"""Writing one solved chunk: its Arrow table, then its part file and the manifest, on a thread
-of their own."""
+"""Writing solved chunks: each chunk's Arrow table and Parquet part file on a pool of threads,
+then, in chunk order, the manifest that lists it."""
 
 from __future__ import annotations
+
+import os
+from collections import deque
 
 import numpy as np
 
 from ._chunks import _status_texts
 from ._store import _schema
+
+#: Parquet settings of the part files: dictionary encoding for the input columns (a grid's
+#: axes repeat a few values; a table's inputs fall back to plain encoding) and the text
+#: columns (status, failure_reason: a handful of values), not for the result columns. pyarrow's
+#: default tries a dictionary for every column and gives it up for float columns only after
+#: filling a page: a 131,072-row chunk of the default columns encoded 3.6x faster without
+#: that attempt (BENCHMARKS.md, "Sweep host side"). Snappy: about as fast as no compression
+#: and a third smaller on real results.
+COMPRESSION = "snappy"
+
+
+def parquet_options(input_columns, result_columns) -> dict:
+    """Keyword arguments of ``pyarrow.parquet.write_table`` for a part file."""
+    text = [c for c in ("status", "failure_reason", "implausible") if c in result_columns]
+    # statistics (min/max per page) for the inputs alone: what readers filter on (16 % of the
+    # encoding's time for the result columns)
+    return {
+        "compression": COMPRESSION,
+        "use_dictionary": [*input_columns, *text],
+        "write_statistics": list(input_columns),
+    }
+
+
+def writer_threads() -> int:
+    """Threads that encode and write part files at once: one per core this process may use
+    (pyarrow releases the GIL while encoding), at least 2."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(2, cores)
 
 
 def _chunk_table(inputs: dict, columns, status, values, settings_hash: str, result_columns):
@@ -33,51 +67,41 @@ def _chunk_table(inputs: dict, columns, status, values, settings_hash: str, resu
 
 
 class _Writer:
-    """Writes finished chunks in a thread of its own, one at a time and in order.
+    """Part files written on ``threads`` threads at once, committed in submission order.
 
-    ``write(*item)`` runs in the thread (part file, then manifest). ``submit`` first waits for
-    the previous item, so at most one chunk is being written while the next is fetched and
-    converted; an error in the thread is raised by the next ``submit`` or by ``finish``.
+    ``write(*item)`` (on a pool thread) builds and writes a chunk's part file; ``commit(*item)``
+    (on the caller's thread, in the order the items were submitted) records it in the
+    manifest. At most ``threads`` chunks are held: ``submit`` first commits the oldest once
+    that many are in flight, so memory stays bounded by a few chunks. An error of a write is
+    raised by the ``submit`` or ``finish`` that commits its chunk; a chunk whose part file was
+    written but not committed (an interruption) is computed again on resumption.
     """
 
-    def __init__(self, write):
-        import queue
-        import threading
+    def __init__(self, write, commit, threads: int):
+        from concurrent.futures import ThreadPoolExecutor
 
-        self._write = write
-        self._queue: queue.Queue = queue.Queue()
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="sweep-writer", daemon=True)
-        self._thread.start()
+        self._write, self._commit = write, commit
+        self._threads = max(1, int(threads))
+        self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="sweep-writer")
+        self._pending: deque = deque()
 
-    def _run(self) -> None:
-        while True:
-            item = self._queue.get()
-            try:
-                if item is None:
-                    return
-                if self._error is None:
-                    self._write(*item)
-            except BaseException as err:  # handed to the main thread
-                self._error = err
-            finally:
-                self._queue.task_done()
-
-    def _check(self) -> None:
-        if self._error is not None:
-            raise self._error
+    def _commit_oldest(self) -> None:
+        future, item = self._pending.popleft()
+        future.result()  # the write's error, if any
+        self._commit(*item)
 
     def submit(self, *item) -> None:
-        self._queue.join()
-        self._check()
-        self._queue.put(item)
+        while len(self._pending) >= self._threads:
+            self._commit_oldest()
+        self._pending.append((self._pool.submit(self._write, *item), item))
 
     def finish(self) -> None:
-        """Wait until everything submitted is written; raise the thread's error, if any."""
-        self._queue.join()
-        self._check()
+        """Wait until everything submitted is written and committed; raise the first error."""
+        while self._pending:
+            self._commit_oldest()
 
     def close(self) -> None:
-        """Stop the thread after what it holds (also after an error in the main thread)."""
-        self._queue.put(None)
-        self._thread.join()
+        """Stop the pool after the writes under way (also after an error in the caller);
+        queued writes are dropped, uncommitted."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pending.clear()

@@ -79,6 +79,7 @@ def cmd_sweep(args) -> int:
         chunk_size=args.chunk_size,
         restart=args.restart,
         progress=not args.no_progress,
+        columns=args.columns,
     )
     print(summary_line(summary))
     if summary.legacy_columns:
@@ -160,6 +161,12 @@ def add_sweep_command(sub) -> None:
         f"{DEFAULT_CHUNK_SIZE_FLOAT32} in float32); memory grows with it",
     )
     sw.add_argument("--precision", choices=("float64", "float32"), default="float64")
+    sw.add_argument(
+        "--columns",
+        metavar="LIST",
+        help="result columns to store, comma-separated (status is always kept; default: all "
+        "of them, about 100 bytes a row; cor_n,contact_time about 30)",
+    )
     sw.add_argument("--restart", action="store_true", help="discard existing results in the output")
     sw.add_argument("--no-progress", action="store_true", help="no progress bar")
     sw.add_argument(
