@@ -4,7 +4,8 @@ Run: ``python benchmarks/sweep_host.py [--rows N] [--chunks 32768 131072 1048576
 [--threads 1 2 4]`` (about 2 minutes on 2 cores).
 
 No impact is solved. The results of 65,536 real float64 impacts of the Table 1 scene (a grid
-of speed, angle, spin and f0) are computed once and tiled to each chunk's size; the program
+of speed, angle, spin and f0) are computed once and tiled to each chunk's size (each copy
+scaled by its own factor 1 + k 1e-9, so that no row repeats another); the program
 that "solves" a chunk returns them from the device as the sweep's program would. Measured:
 
 - each stage alone, on one thread, one chunk of each size: *inputs* (the chunk's grid rows
@@ -12,9 +13,10 @@ that "solves" a chunk returns them from the device as the sweep's program would.
   Parquet bytes, in memory) and *write* (the atomic file write of those bytes);
 - the pipeline as the sweep runs it (``jaximpact.sweep._run._Pipeline``: dispatch, fetch,
   part files on ``threads`` writer threads, manifests in chunk order) over ``--rows`` rows, by
-  writer-thread count and chunk size;
-- the Parquet settings: pyarrow's defaults against the sweep's (dictionary only for the text
-  columns), by compression.
+  compression, chunk size and writer-thread count;
+- the Parquet settings: pyarrow's defaults against the sweep's (dictionary only for the input
+  and text columns, statistics only for the inputs), by compression (the sweep's default:
+  none); bytes per row by ``--columns``.
 
 The sweep's default columns: the impact inputs (speed, angle_deg, omega0, f0) and every
 result column (``jaximpact._io.tables.RESULT_COLUMNS``).
@@ -79,8 +81,11 @@ def real_results():
 
 
 def _tiled(status, values, size):
+    """``size`` rows of the REAL results, each copy scaled by its own factor 1 + k 1e-9 (a
+    sweep's impacts differ: exact copies would flatter dictionary encoding)."""
     reps = -(-size // status.size)
-    return np.tile(status, reps)[:size], np.tile(values, (1, reps))[:, :size]
+    scale = np.repeat(1.0 + 1e-9 * np.arange(reps), status.size)
+    return np.tile(status, reps)[:size], (np.tile(values, (1, reps)) * scale)[:, :size]
 
 
 def _rate(seconds, rows):
@@ -157,7 +162,32 @@ def encoding_rates(status, values, size):
     return out
 
 
-def pipeline_rate(status, values, rows, size, threads):
+COLUMN_SETS = {
+    "all (default)": RESULT_COLUMNS,
+    "cor_n,cor_t,omega_out,contact_time": ("status", "cor_n", "cor_t", "omega_out",
+                                            "contact_time"),
+    "cor_n": ("status", "cor_n"),
+}  # fmt: skip
+
+
+def column_set_sizes(status, values, size):
+    """Bytes per row of a part file by the result columns kept (``--columns``)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    source = _grid(size)
+    rows = source.rows(0, size)
+    st, vals = _tiled(status, values, size)
+    out = []
+    for label, columns in COLUMN_SETS.items():
+        tab = _writer._chunk_table(rows, source.columns, st, vals, "x", columns)
+        buffer = pa.BufferOutputStream()
+        pq.write_table(tab, buffer, **_writer.parquet_options(source.columns, columns))
+        out.append((label, len(columns), len(buffer.getvalue()) / size))
+    return out
+
+
+def pipeline_rate(status, values, rows, size, threads, compression=None):
     """Million rows/s of the sweep's pipeline (no solving) over ``rows`` rows."""
     source = _grid(rows)
     n = (source.n // size) * size or size
@@ -176,6 +206,7 @@ def pipeline_rate(status, values, rows, size, threads):
             RESULT_COLUMNS, [], {},
         )  # fmt: skip
         pipeline.threads = threads
+        pipeline.compression = compression
         todo = list(range(n // size))
 
         class _Bar:  # the progress bar's interface, silent
@@ -222,14 +253,25 @@ def main():
         rows.append([label, f"{rate:.2f}", f"{per_row:.0f}"])
     lines.append(f"\nParquet encoding of a {max(args.chunks):,}-row chunk (one thread):\n")
     lines.append(table(["settings", "M rows/s", "bytes/row"], rows))
+    rows = [[label, str(n), f"{b:.0f}"] for label, n, b in
+            column_set_sizes(status, values, max(args.chunks))]  # fmt: skip
+    lines.append(f"\nBytes per row of a {max(args.chunks):,}-row part file by `--columns`:\n")
+    lines.append(table(["--columns", "result columns (status included)", "bytes/row"], rows))
     rows = []
-    for size in args.chunks:
-        for threads in args.threads:
-            rate, per_row = pipeline_rate(status, values, args.rows, size, threads)
-            rows.append([f"{size:,}", str(threads), f"{rate:.2f}", f"{per_row:.0f}"])
-            print(rows[-1], file=sys.stderr, flush=True)
-    lines.append(f"\nThe pipeline (no solving) over {args.rows:,} rows:\n")
-    lines.append(table(["chunk", "writer threads", "M rows/s", "bytes/row on disk"], rows))
+    for compression in ("none", "snappy"):
+        for size in args.chunks:
+            for threads in args.threads:
+                rate, per_row = pipeline_rate(status, values, args.rows, size, threads,
+                                              compression)  # fmt: skip
+                rows.append([compression, f"{size:,}", str(threads), f"{rate:.2f}",
+                             f"{per_row:.0f}"])  # fmt: skip
+                print(rows[-1], file=sys.stderr, flush=True)
+    lines.append(
+        f"\nThe pipeline (no solving) over {args.rows:,} rows (default: no compression, "
+        f"{_writer.writer_threads()} writer threads here):\n"
+    )
+    lines.append(table(["compression", "chunk", "writer threads", "M rows/s",
+                        "bytes/row on disk"], rows))  # fmt: skip
     print("\n".join(lines))
     print(f"load average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 

@@ -245,6 +245,22 @@ def test_chosen_columns_are_stored_read_and_kept_when_continuing(impacts, refere
     assert not (tmp_path / "new").exists()
 
 
+def test_compression_of_the_part_files(impacts, reference, tmp_path):
+    """Uncompressed by default (the fastest to write); ``compression=`` picks a codec, with
+    the same numbers; an unknown codec is refused before anything is written."""
+    out = tmp_path / "zstd.parquet"
+    run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False,
+              compression="zstd")  # fmt: skip
+    codec = pq.ParquetFile(out / "part-000000.parquet").metadata.row_group(0).column(0)
+    assert codec.compression == "ZSTD"
+    assert_same(read_sweep_columns(out), reference[1])
+    plain = pq.ParquetFile(reference[0] / "part-000000.parquet").metadata.row_group(0)
+    assert plain.column(0).compression == "UNCOMPRESSED"
+    with pytest.raises(SweepError, match="compression: 'gzip'"):
+        run_sweep(read_impacts_file(impacts), tmp_path / "new", compression="gzip")
+    assert not (tmp_path / "new").exists()
+
+
 def test_writer_commits_in_order_while_writes_overlap():
     """Part files are written on several threads at once (the later ones may finish first);
     the manifest records them in submission order, at most ``threads`` held at a time."""

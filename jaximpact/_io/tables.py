@@ -567,7 +567,7 @@ def atomic_write_text(path, text: str, *, encoding: str = "utf-8") -> None:
     atomic_write_bytes(path, text.encode(encoding))
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
+def atomic_write_bytes(path, data: bytes | memoryview) -> None:
     """Write ``data`` to ``path`` so that readers see either the old file or the whole new one.
 
     The data goes to a temporary file in the same directory (so the final rename stays on one

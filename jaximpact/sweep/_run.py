@@ -39,7 +39,7 @@ from ._store import (
     _result_columns,
     _setting_differences,
 )
-from ._writer import _chunk_table, _Writer, parquet_options, writer_threads
+from ._writer import COMPRESSIONS, _chunk_table, _Writer, parquet_options, writer_threads
 
 DEFAULT_CHUNK_SIZE = 8192
 # float32: a chunk computes ~7x faster than a float64 one, and a chunk's fixed costs (dispatch,
@@ -111,6 +111,7 @@ def run_sweep(
     process_index: int | None = None,
     process_count: int | None = None,
     columns=None,
+    compression: str | None = None,
 ) -> SweepSummary:
     """Run (or continue) a sweep, writing each finished chunk to ``output``.
 
@@ -133,6 +134,8 @@ def run_sweep(
         columns: the result columns to store (names of ``RESULT_COLUMNS``; ``status`` is
             always kept), or None for all of them (the sweep's own when continuing one).
             Fewer columns, fewer bytes per row (README, "Large sweeps"); part of the settings.
+        compression: of the part files: "none" (default: the fastest to write), "snappy",
+            "lz4" or "zstd" (smaller, slower); not a setting (readers take any mix).
 
     Returns:
         SweepSummary: what this call computed.
@@ -158,6 +161,8 @@ def run_sweep(
         )
     index, count = _process_share(chunk_size, devices, process_index, process_count)
     scene = load_scene(scene_path)
+    if compression is not None and compression not in COMPRESSIONS:
+        raise SweepError(f"compression: {compression!r}; allowed: {', '.join(COMPRESSIONS)}")
     chosen = result_columns_for(columns)
     if chosen is None and not restart:  # continuing: the sweep's own choice
         chosen = _existing_result_columns(Path(output))
@@ -193,6 +198,7 @@ def run_sweep(
         source, base, chunk_size, dtype, fn, sharding, directory, manifest, result_columns,
         own_completed, own_failures,
     )  # fmt: skip
+    pipeline.compression = compression
     bar = _progress_bar(source, chunk_size, mine, todo, progress, directory, index, count)
     pipeline.run(todo, bar)
     legacy = chosen is None and result_columns != RESULT_COLUMNS  # begun before failure_reason
@@ -365,6 +371,7 @@ class _Pipeline:
         self.failed = self.impacts_run = 0
         self.bar = None
         self.threads = writer_threads()
+        self.compression = None  # the part files' (parquet_options' default)
 
     def launch(self, chunk: int):
         """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
@@ -382,7 +389,7 @@ class _Pipeline:
         _atomic_write_table(
             self.directory / _part_name(chunk),
             table,
-            **parquet_options(self.source.columns, self.result_columns),
+            **parquet_options(self.source.columns, self.result_columns, self.compression),
         )
 
     def commit(self, chunk: int, valid: int, rows: dict, status, values) -> None:

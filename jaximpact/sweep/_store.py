@@ -61,7 +61,7 @@ def _atomic_write_table(path: Path, table, **options) -> None:
 
     buffer = pa.BufferOutputStream()  # one chunk's file: tens of MB at most
     pq.write_table(table, buffer, **options)
-    atomic_write_bytes(path, buffer.getvalue().to_pybytes())
+    atomic_write_bytes(path, memoryview(buffer.getvalue()))  # no copy into Python bytes
 
 
 def _load_manifests(directory: Path) -> dict[int, tuple[Path, dict]]:

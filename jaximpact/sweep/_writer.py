@@ -15,32 +15,37 @@ from ._store import _schema
 #: axes repeat a few values; a table's inputs fall back to plain encoding) and the text
 #: columns (status, failure_reason: a handful of values), not for the result columns. pyarrow's
 #: default tries a dictionary for every column and gives it up for float columns only after
-#: filling a page: a 131,072-row chunk of the default columns encoded 3.6x faster without
-#: that attempt (BENCHMARKS.md, "Sweep host side"). Snappy: about as fast as no compression
-#: and a third smaller on real results.
-COMPRESSION = "snappy"
+#: filling a page: a 1,048,576-row chunk of the default columns encoded 2.2x faster without
+#: that attempt (BENCHMARKS.md, "Sweep host side"). No compression by default: on 2 cores the
+#: pipeline handled 3.7-4.0 million rows/s of real results against 2.9-3.0 with Snappy
+#: (files 18 % larger; lz4 as slow as Snappy, zstd slower); ``--compression`` picks another.
+COMPRESSION = "none"
+COMPRESSIONS = ("none", "snappy", "lz4", "zstd")
 
 
-def parquet_options(input_columns, result_columns) -> dict:
-    """Keyword arguments of ``pyarrow.parquet.write_table`` for a part file."""
+def parquet_options(input_columns, result_columns, compression=None) -> dict:
+    """Keyword arguments of ``pyarrow.parquet.write_table`` for a part file (``compression``:
+    one of :data:`COMPRESSIONS`; default :data:`COMPRESSION`)."""
     text = [c for c in ("status", "failure_reason", "implausible") if c in result_columns]
     # statistics (min/max per page) for the inputs alone: what readers filter on (16 % of the
     # encoding's time for the result columns)
     return {
-        "compression": COMPRESSION,
+        "compression": compression or COMPRESSION,
         "use_dictionary": [*input_columns, *text],
         "write_statistics": list(input_columns),
     }
 
 
 def writer_threads() -> int:
-    """Threads that encode and write part files at once: one per core this process may use
-    (pyarrow releases the GIL while encoding), at least 2."""
+    """Threads that encode and write part files at once (pyarrow releases the GIL while
+    encoding): one per core this process may use, at least 4 (writing waits on the disk too:
+    on 2 cores 4 threads handled 1.05-1.26x the rows/s of 2 with chunks of 131,072 rows and
+    more) and at most 8 (each holds a chunk: memory)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
-    return max(2, cores)
+    return max(4, min(cores, 8))
 
 
 def _chunk_table(inputs: dict, columns, status, values, settings_hash: str, result_columns):
