@@ -261,6 +261,27 @@ def test_compression_of_the_part_files(impacts, reference, tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+def test_float32_stored_results(impacts, reference, tmp_path):
+    """``stored_precision="float32"``: result columns float32 (inputs float64), each the
+    float64 result rounded to float32; part of the settings (continuing keeps it)."""
+    out = tmp_path / "f32.parquet"
+    run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False,
+              stored_precision="float32")  # fmt: skip
+    schema = pq.read_schema(out / "part-000000.parquet")
+    assert schema.field("speed").type == pa.float64()
+    assert schema.field("cor_n").type == pa.float32() and schema.field("status").type == pa.string()
+    got = read_sweep_columns(out)
+    ref = reference[1]
+    for name in ("cor_n", "vt_out", "omega_out", "contact_time"):
+        np.testing.assert_array_equal(got[name], ref[name].astype(np.float32).astype(np.float64))
+    np.testing.assert_array_equal(got["speed"], ref["speed"])
+    again = run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False)
+    assert again.chunks_run == 0 and again.complete  # its own precision
+    with pytest.raises(SweepError, match="stored_precision"):
+        run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False,
+                  stored_precision="float64")  # fmt: skip
+
+
 def test_writer_commits_in_order_while_writes_overlap():
     """Part files are written on several threads at once (the later ones may finish first);
     the manifest records them in submission order, at most ``threads`` held at a time."""

@@ -160,10 +160,13 @@ def _model_config(scene, source, chunk_size: int, dtype):
     return base, terms, cfg
 
 
-def _settings(scene_path, source, chunk_size: int, dtype, result_columns=None) -> tuple[dict, str]:
+def _settings(
+    scene_path, source, chunk_size: int, dtype, result_columns=None, stored="float64"
+) -> tuple[dict, str]:
     """The sweep's settings and their digest; ``result_columns``: a chosen subset (recorded,
     so that resuming with other columns is refused), or None for every column (the settings of
-    sweeps begun before the choice existed)."""
+    sweeps begun before the choice existed); ``stored``: the result columns' precision
+    (recorded where float32)."""
     from .. import __version__
     from .._io.scene_files import describe_scene_source
     from .._io.scene_files import scene_path as resolve_scene
@@ -183,6 +186,8 @@ def _settings(scene_path, source, chunk_size: int, dtype, result_columns=None) -
     }
     if result_columns is not None and tuple(result_columns) != RESULT_COLUMNS:
         settings["result_columns"] = list(result_columns)
+    if stored != "float64":
+        settings["stored_precision"] = stored
     # The hash covers what determines the numbers; not the scene's path (moving a file is fine).
     hashed = {k: v for k, v in settings.items() if k != "scene"}
     digest = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()

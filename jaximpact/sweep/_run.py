@@ -112,6 +112,7 @@ def run_sweep(
     process_count: int | None = None,
     columns=None,
     compression: str | None = None,
+    stored_precision: str | None = None,
 ) -> SweepSummary:
     """Run (or continue) a sweep, writing each finished chunk to ``output``.
 
@@ -136,6 +137,10 @@ def run_sweep(
             Fewer columns, fewer bytes per row (README, "Large sweeps"); part of the settings.
         compression: of the part files: "none" (default: the fastest to write), "snappy",
             "lz4" or "zstd" (smaller, slower); not a setting (readers take any mix).
+        stored_precision: of the numeric result columns: "float64" or "float32" (half the
+            bytes; the natural choice for a float32 run, whose results carry about 1e-5
+            relative error anyway); None: the sweep's own when continuing one, else float64.
+            Part of the settings.
 
     Returns:
         SweepSummary: what this call computed.
@@ -163,10 +168,15 @@ def run_sweep(
     scene = load_scene(scene_path)
     if compression is not None and compression not in COMPRESSIONS:
         raise SweepError(f"compression: {compression!r}; allowed: {', '.join(COMPRESSIONS)}")
+    if stored_precision not in (None, "float64", "float32"):
+        raise SweepError(f"stored_precision: {stored_precision!r}; allowed: float64, float32")
     chosen = result_columns_for(columns)
     if chosen is None and not restart:  # continuing: the sweep's own choice
         chosen = _existing_result_columns(Path(output))
-    settings, digest = _settings(scene_path, source, chunk_size, dtype, chosen)
+    if stored_precision is None:
+        own = None if restart else _existing_setting(Path(output), "stored_precision")
+        stored_precision = own or "float64"
+    settings, digest = _settings(scene_path, source, chunk_size, dtype, chosen, stored_precision)
     n_chunks = settings["n_chunks"]
 
     directory = Path(output)
@@ -199,6 +209,7 @@ def run_sweep(
         own_completed, own_failures,
     )  # fmt: skip
     pipeline.compression = compression
+    pipeline.stored = stored_precision
     bar = _progress_bar(source, chunk_size, mine, todo, progress, directory, index, count)
     pipeline.run(todo, bar)
     legacy = chosen is None and result_columns != RESULT_COLUMNS  # begun before failure_reason
@@ -223,13 +234,19 @@ def result_columns_for(columns) -> tuple[str, ...] | None:
     return tuple(c for c in RESULT_COLUMNS if c == "status" or c in names)
 
 
+def _existing_setting(directory: Path, name: str):
+    """A setting of the sweep in ``directory`` (None if there is no sweep or no such entry)."""
+    for _, manifest in _load_manifests(directory).values() if directory.is_dir() else ():
+        value = manifest.get("settings", {}).get(name)
+        if value:
+            return value
+    return None
+
+
 def _existing_result_columns(directory: Path) -> tuple[str, ...] | None:
     """The result columns a sweep in ``directory`` was begun with, where it chose a subset."""
-    for _, manifest in _load_manifests(directory).values() if directory.is_dir() else ():
-        chosen = manifest.get("settings", {}).get("result_columns")
-        if chosen:
-            return tuple(chosen)
-    return None
+    chosen = _existing_setting(directory, "result_columns")
+    return tuple(chosen) if chosen else None
 
 
 def _summary(
@@ -372,6 +389,7 @@ class _Pipeline:
         self.bar = None
         self.threads = writer_threads()
         self.compression = None  # the part files' (parquet_options' default)
+        self.stored = "float64"  # the numeric result columns' precision
 
     def launch(self, chunk: int):
         """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""
@@ -384,7 +402,7 @@ class _Pipeline:
         """On a writer thread: the chunk's table and part file."""
         table = _chunk_table(
             rows, self.source.columns, status, values, self.manifest["settings_hash"],
-            self.result_columns,
+            self.result_columns, self.stored,
         )  # fmt: skip
         _atomic_write_table(
             self.directory / _part_name(chunk),

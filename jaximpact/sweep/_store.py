@@ -267,14 +267,20 @@ def _merged(path) -> tuple[dict, list[int]]:
     return {**settings, "settings_hash": hashes.pop()}, done
 
 
-def _schema(input_columns, result_columns=RESULT_COLUMNS):
-    """The part files' schema: float64 inputs and results, text columns as strings; each
-    column's SI unit as field metadata ``{"unit": ...}`` (none for text columns)."""
+def _schema(input_columns, result_columns=RESULT_COLUMNS, stored="float64"):
+    """The part files' schema: float64 inputs, results as ``stored`` (float64, or float32
+    where the sweep asked for it), text columns as strings; each column's SI unit as field
+    metadata ``{"unit": ...}`` (none for text columns)."""
     import pyarrow as pa
+
+    number = pa.float32() if stored == "float32" else pa.float64()
 
     def make_field(name: str):
         unit = COLUMN_UNITS.get(name, "")
-        kind = pa.string() if name in TEXT_RESULT_COLUMNS else pa.float64()
+        if name in TEXT_RESULT_COLUMNS:
+            kind = pa.string()
+        else:
+            kind = number if name in result_columns else pa.float64()
         return pa.field(name, kind, metadata={"unit": unit} if unit else None)
 
     return pa.schema([make_field(n) for n in (*input_columns, *result_columns)])
@@ -321,7 +327,11 @@ def read_sweep(path, *, allow_partial: bool = False):
             f"{path}: sweep incomplete: {len(missing)} of {settings['n_chunks']} chunks not done "
             f"(first: {missing[0]}); run the same command again to finish it"
         )
-    target = _schema(settings["columns"], settings.get("result_columns", RESULT_COLUMNS))
+    target = _schema(
+        settings["columns"],
+        settings.get("result_columns", RESULT_COLUMNS),
+        settings.get("stored_precision", "float64"),
+    )
     tables = []
     for chunk in done:
         file = Path(path) / _part_name(chunk)
@@ -365,7 +375,11 @@ def iter_chunks(path) -> Iterator:
     import pyarrow.parquet as pq
 
     settings, done = _merged(path)
-    target = _schema(settings["columns"], settings.get("result_columns", RESULT_COLUMNS))
+    target = _schema(
+        settings["columns"],
+        settings.get("result_columns", RESULT_COLUMNS),
+        settings.get("stored_precision", "float64"),
+    )
     for chunk in done:
         file = Path(path) / _part_name(chunk)
         yield _normalized(pq.read_table(file), file, target)

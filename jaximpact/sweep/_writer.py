@@ -48,10 +48,13 @@ def writer_threads() -> int:
     return max(4, min(cores, 8))
 
 
-def _chunk_table(inputs: dict, columns, status, values, settings_hash: str, result_columns):
+def _chunk_table(
+    inputs: dict, columns, status, values, settings_hash: str, result_columns, stored="float64"
+):
     """One chunk's part file: inputs, then ``result_columns`` (``failure_reason`` null unless
-    failed), units as field metadata, the settings hash as file metadata. ``status``: codes;
-    ``values``: the numeric result columns in ``OUTPUT_FIELDS`` order (``_fetch``)."""
+    failed; numbers as ``stored``), units as field metadata, the settings hash as file
+    metadata. ``status``: codes; ``values``: the numeric result columns in ``OUTPUT_FIELDS``
+    order (``_fetch``)."""
     import pyarrow as pa
 
     from .._engine.results import OUTPUT_FIELDS
@@ -66,8 +69,8 @@ def _chunk_table(inputs: dict, columns, status, values, settings_hash: str, resu
         elif name == "failure_reason":
             arrays.append(reason_text.take(codes))
         else:
-            arrays.append(pa.array(np.asarray(numbers[name], np.float64)))
-    table = pa.Table.from_arrays(arrays, schema=_schema(columns, result_columns))
+            arrays.append(pa.array(np.asarray(numbers[name], stored)))
+    table = pa.Table.from_arrays(arrays, schema=_schema(columns, result_columns, stored))
     return table.replace_schema_metadata({"jaximpact.settings_hash": settings_hash})
 
 

@@ -81,6 +81,7 @@ def cmd_sweep(args) -> int:
         progress=not args.no_progress,
         columns=args.columns,
         compression=args.compression,
+        stored_precision=args.stored_precision,
     )
     print(summary_line(summary))
     if summary.legacy_columns:
@@ -167,6 +168,13 @@ def add_sweep_command(sub) -> None:
         metavar="LIST",
         help="result columns to store, comma-separated (status is always kept; default: all "
         "of them, about 120 bytes a row; cor_n,cor_t,omega_out,contact_time about 35)",
+    )
+    sw.add_argument(
+        "--stored-precision",
+        choices=("float64", "float32"),
+        default=None,
+        help="of the numeric result columns (float32: half the bytes, for float32 runs; "
+        "default: the sweep's own when continuing one, else float64)",
     )
     sw.add_argument(
         "--compression",
