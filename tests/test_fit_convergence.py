@@ -302,6 +302,30 @@ def test_import_turns_the_cache_on_unless_told_otherwise(tmp_path, setting):
     assert not (tmp_path / "xdg").exists()
 
 
+def test_fit_in_float32_warns(tmp_path):
+    """``fitting.fit`` where JAX runs in float32 (no jax_enable_x64): a warning that says
+    how to switch, before anything else (here the bad name's error follows it)."""
+    data = tmp_path / "d.csv"
+    data.write_text("speed,angle_deg,observable,value\n1,0,cor_n,0.6\n2,0,cor_n,0.5\n")
+    code = (
+        "import warnings, fitting, jaximpact\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    try:\n"
+        f"        fitting.fit(jaximpact.table1_scene(), {str(data)!r}, ['bogus'])\n"
+        "    except ValueError as err:\n"
+        "        print('error:', err)\n"
+        "print('warned:', [str(w.message) for w in caught])\n"
+    )
+    env = {**os.environ, "JAXIMPACT_CACHE_DIR": "off"}
+    run = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    assert "float32" in run.stdout and "jax_enable_x64" in run.stdout
+    assert "bogus" in run.stdout
+
+
 def test_cli_computation_failure_exits_1(monkeypatch, capsys):
     def boom(args):
         raise RuntimeError("XLA ran out of luck\nsecond line")

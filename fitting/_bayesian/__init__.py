@@ -1,1 +1,2 @@
-"""Bayesian identification: priors, the posterior samplers (SMC by default; independence Metropolis, HMC) and their report."""
+"""Bayesian identification: priors, the posterior samplers (SMC by default; independence
+Metropolis, HMC) and their report."""

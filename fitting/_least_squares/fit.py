@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -297,6 +298,14 @@ def fit(
     malformed data file.
     """
     t_start = time.perf_counter()
+    if not jax.config.jax_enable_x64:
+        warnings.warn(
+            "fit: JAX runs in float32 here; the fit's tolerances and uncertainties need "
+            'float64: call jax.config.update("jax_enable_x64", True) before any JAX array '
+            "is made (the command line does)",
+            UserWarning,
+            stacklevel=2,
+        )
     names = check_names(params, scene)
     initial = _check_options(names, solver, jacobian, starts, max_steps, spread, initial)
     p0 = [float(initial.get(n, get_parameter(scene, n))) for n in names]

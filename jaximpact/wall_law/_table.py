@@ -297,7 +297,7 @@ def wall_law(
         scene, radius, angle_deg, omega0, speed_ratio
     )
     ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
-    rows = ctx.angles(angle, batch=None)
+    rows = ctx.angles(angle, batch=None, stage="pass 1 (the grid's angles)")
     if refine and angle.size >= 3:
         rows, angle = _refined(ctx, rows, angle, refine_tol, say)
     law = _assembled(scene, rows, radius, angle, omega, x, adhesive)
@@ -363,7 +363,7 @@ def _refined(ctx, rows, angle, tol, say):
     if not extra.size:
         return rows, angle
     say(f"refining: {extra.size} more angles where the table bends sharply")
-    more = ctx.angles(extra, batch=ctx.batch)
+    more = ctx.angles(extra, batch=ctx.batch, stage="pass 2 (refined angles)")
     rows = {k: np.concatenate([rows[k], more[k]], axis=1) for k in rows}
     angle = np.concatenate([angle, extra])
     order = np.argsort(angle)
@@ -400,9 +400,11 @@ class _Context:
         self.radius, self.omega, self.x, self.adhesive, self.say = radius, omega, x, adhesive, say
         self.batch = None
         self.impacts = 0
+        self.label = ""  # which pass and batch the progress lines are about
 
-    def angles(self, angle, batch=None) -> dict:
-        """Rows for ``angle``: arrays ``(R, A, W[, X])`` flattened to ``(R, A*W[, X])``."""
+    def angles(self, angle, batch=None, stage="") -> dict:
+        """Rows for ``angle``: arrays ``(R, A, W[, X])`` flattened to ``(R, A*W[, X])``;
+        ``stage``: named in the progress lines (with the batch, where there are several)."""
         R, A, W = self.radius.size, angle.size, self.omega.size
         r = np.broadcast_to(self.radius[:, None, None], (R, A, W)).reshape(-1)
         a = np.broadcast_to(angle[None, :, None], (R, A, W)).reshape(-1)
@@ -412,7 +414,10 @@ class _Context:
         if self.batch is None:
             self.batch = batch
         parts = []
+        batches = -(-n // batch)
         for lo in range(0, n, batch):
+            part = f", batch {lo // batch + 1} of {batches}" if batches > 1 else ""
+            self.label = f"{stage}{part}: " if stage else ""
             idx = np.arange(lo, min(lo + batch, n))
             pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
             out = self._lanes(r[pad], a[pad], w[pad])
@@ -426,7 +431,7 @@ class _Context:
         params["radius"] = r
         lane_scene = scene_with(self.scene, params)
         if self.adhesive:
-            self.say(f"capture speeds of {n} (radius, angle, spin) lanes")
+            self.say(f"{self.label}capture speeds of {n} (radius, angle, spin) lanes")
             cap = capture_speed(lane_scene, a, w)
             v_c = np.asarray(cap.speed, dtype=float)
             c_status = np.asarray(cap.status)
@@ -456,7 +461,7 @@ class _Context:
         speed = v_ref[:, None] * x[None, :]
         status = np.zeros((n, X), int)
         out = {k: np.full((n, X), np.nan) for k in OUTPUTS}
-        self.say(f"{n * X} impacts ({n} lanes x {X} speeds)")
+        self.say(f"{self.label}{n * X} impacts ({n} lanes x {X} speeds)")
         first = 1 if self.adhesive else 0
         for k in range(first, X):  # one batch shape: one compiled program with the capture's
             res = self.simulate(lane_scene, speed[:, k], a, w)
