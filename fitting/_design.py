@@ -328,7 +328,16 @@ def _candidates(candidates, observables) -> tuple:
             f"({', '.join(candidates.overrides)}) are not supported in a design"
         )
     if "cor_t" in observables and np.any(candidates.angle_deg == 0):
-        raise FitError("observables: cor_t is undefined at normal impacts (angle_deg = 0)")
+        rows = np.flatnonzero(candidates.angle_deg == 0)
+        if candidates.lines is not None:
+            where = "line " + ", ".join(str(int(candidates.lines[i])) for i in rows[:5])
+        else:
+            where = "row " + ", ".join(str(int(i)) for i in rows[:5])
+        more = f" and {len(rows) - 5} more" if len(rows) > 5 else ""
+        raise FitError(
+            f"{source or 'candidates'}, {where}{more}: angle_deg = 0, where cor_t (an "
+            "observable) is undefined; remove the normal impacts or leave cor_t out"
+        )
 
     return candidates, source
 

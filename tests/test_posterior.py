@@ -407,6 +407,8 @@ def test_cli_bad_posterior_options_exit_2(extra, field, tmp_path, capsys):
         (["--sigma", "cor_n=-1"], "sigma of cor_n"),
         (["--sigma", "vt_out=0.1"], "sigma given for 'vt_out'"),
         (["--n", "0"], "--n"),
+        # the normal impact's line named, before anything is compiled
+        (["--observables", "cor_t"], "cand.csv, line 2: angle_deg = 0, where cor_t"),
     ],
 )
 def test_cli_design_bad_input_exit_2(extra, field, tmp_path, capsys):
