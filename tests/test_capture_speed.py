@@ -166,3 +166,28 @@ def test_derivatives_match_central_differences_of_the_reference(angle, omega0):
         # (friction with spin: d ln v_c / d ln friction ~ 3e-7)
         noise = 1e-10 * v0 / (1e-3 * getattr(p, name))
         assert abs(got - want) <= 1e-3 * abs(want) + noise, (name, got, want, noise)
+
+
+@pytest.mark.slow  # compiles the tangent program (30-60 s)
+def test_gradients_in_one_parameter_then_another_compile_once(caplog):
+    """``jax.grad`` (reverse mode, through the implicit derivative) in f0, then in C_H: equal
+    to central differences of the reference's threshold, and the second compiles nothing
+    (every partial derivative comes from one program, whichever parameter is asked for)."""
+    import logging
+
+    base = ji.table1_scene()
+
+    def vc(f0, c_h):
+        return ji.capture_speed(base.replace(contact={"f0": f0, "C_H": c_h}), 30.0).speed
+
+    d_f0 = float(jax.grad(vc, 0)(300.0, 0.25))
+    with caplog.at_level(logging.WARNING), jax.log_compiles(True):
+        d_ch = float(jax.grad(vc, 1)(300.0, 0.25))
+    compiled = [r for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
+    assert compiled == []
+    values = {k: float(v) for k, v in ji.scene_parameters(base).items()}
+    p = reference_params({**values, "f0": 300.0, "C_H": 0.25})
+    v0 = float(vc(300.0, 0.25))
+    for name, got in (("f0", d_f0), ("C_H", d_ch)):
+        want = central_difference(p, name, 30.0, 0.0, v0)
+        assert abs(got - want) <= 1e-4 * abs(want), (name, got, want)

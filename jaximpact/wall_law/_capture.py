@@ -426,7 +426,14 @@ def _secant(b, qb, c, qc):
 
 
 def _implicit_tangent(scene, names, values, angle, omega, v_c, status, dvalues, dangle, domega):
-    """``dv_c`` by the implicit-function theorem (module docstring)."""
+    """``dv_c`` by the implicit-function theorem (module docstring).
+
+    The partial derivatives of the margin with respect to every input (each scene parameter,
+    the angle, the spin and the speed) are computed at once, as concrete numbers, by one
+    forward-mode program with a tangent per input; ``dv_c`` is then their combination with
+    the caller's tangents. So the compiled program is the same whichever parameters the
+    caller differentiates (``jax.grad`` in f0, then in C_H, compile nothing new), and a
+    gradient in every parameter costs one program run."""
     dtype = jnp.result_type(float)
     shape = np.shape(v_c)
     usable = np.isin(status, (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE)) & np.isfinite(v_c)
@@ -436,22 +443,38 @@ def _implicit_tangent(scene, names, values, angle, omega, v_c, status, dvalues, 
     factors = np.array([1.0 + EPS, 1.0 + 2.0 * EPS])
     safe_vc = np.where(usable, v_c, 1.0)
     speeds = jnp.asarray(safe_vc[..., None] * factors, dtype)  # (*shape, 2)
-    expand = lambda x: jnp.broadcast_to(jnp.asarray(x, dtype)[..., None], shape + (2,))  # noqa: E731
-
-    def g_of(vals, ang, om, v):
-        params = {k: expand(x) for k, x in zip(names, vals, strict=True)}
-        g, _ = _margin(scene, params, v, expand(ang), expand(om))
-        return g
-
-    primals = (tuple(values), angle, omega)
-    # dg/dv: concrete (only the speed moves)
-    _, dg_dv = jax.jvp(lambda v: g_of(*primals, v), (speeds,), (jnp.ones_like(speeds),))
-    # dg/dp . dp: along the caller's tangents
-    _, dg_dp = jax.jvp(
-        lambda vals, ang, om: g_of(vals, ang, om, speeds),
-        primals,
-        (tuple(dvalues), dangle, domega),
+    inputs = jnp.stack(
+        [jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (*values, angle, omega)]
+    )  # (inputs, *shape): the primals, concrete
+    partials = _margin_partials(scene, names, inputs, speeds)  # (inputs + 1, *shape, 2)
+    dg_dv = partials[-1]
+    tangents = [*dvalues, dangle, domega]
+    dg_dp = sum(
+        partials[k] * jnp.broadcast_to(jnp.asarray(t, dtype), shape)[..., None]
+        for k, t in enumerate(tangents)
     )
     ratio = -dg_dp / jnp.where(dg_dv == 0, jnp.nan, dg_dv)
     dv = 2.0 * ratio[..., 0] - ratio[..., 1]
     return jnp.where(jnp.asarray(usable), dv, fill)
+
+
+def _margin_partials(scene, names, inputs, speeds):
+    """``dg/dx`` for every row ``x`` of ``inputs`` (the scene parameters ``names``, the angle,
+    the spin), then ``dg/dv``, at the points ``speeds`` (*shape, 2): ``(len(inputs) + 1,
+    *shape, 2)``, by forward mode with one tangent per input (one program)."""
+    k = inputs.shape[0]
+    expand = lambda x: jnp.broadcast_to(x[..., None], speeds.shape)  # noqa: E731
+
+    def g_of(inputs, v):
+        params = {n: expand(inputs[i]) for i, n in enumerate(names)}
+        g, _ = _margin(scene, params, v, expand(inputs[k - 2]), expand(inputs[k - 1]))
+        return g
+
+    basis = jnp.eye(k + 1, dtype=inputs.dtype)
+
+    def along(e):
+        tangent = (e[:k].reshape((k,) + (1,) * (inputs.ndim - 1)) * jnp.ones_like(inputs),
+                   e[k] * jnp.ones_like(speeds))  # fmt: skip
+        return jax.jvp(g_of, (inputs, speeds), tangent)[1]
+
+    return jax.vmap(along)(basis)
