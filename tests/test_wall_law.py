@@ -358,3 +358,28 @@ def test_default_grid_accuracy(scene):
     assert np.all(c["status_agree"] | c["near_capture"])
     assert np.nanmax(c["error"]["cor_n"]) < 1e-3
     assert np.nanmax(c["error"]["cor_t"]) < 1e-3
+
+
+def test_wall_law_extra_installs_what_the_command_checks_for():
+    """The `[wall-law]` extra names every package the command imports before computing (a
+    fresh `pip install -e ".[wall-law]"` once lacked h5py, which h5netcdf writes through)."""
+    import ast
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    extra = tomllib.loads((root / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"
+    ]["wall-law"]
+    names = {r.split(">")[0].split("=")[0].split("[")[0].strip().lower() for r in extra}
+    tree = ast.parse((root / "jaximpact" / "wall_law" / "cli.py").read_text())
+    checked = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Try):
+            handlers = [h.type for h in node.handlers]
+            if any(isinstance(t, ast.Name) and t.id == "ImportError" for t in handlers):
+                for stmt in node.body:
+                    if isinstance(stmt, ast.Import):
+                        checked |= {a.name.split(".")[0] for a in stmt.names}
+    assert {"h5netcdf", "h5py", "xarray"} <= checked
+    assert checked <= names, checked - names

@@ -79,8 +79,9 @@ def cmd_wall_law(args) -> int:
     if args.check < 0:
         raise SceneError(f"--check must be an integer >= 0, got {args.check}")
     draws = read_draws(args.draws) if args.draws else None
-    try:
+    try:  # the writer's dependencies, before any computing
         import h5netcdf  # noqa: F401
+        import h5py  # noqa: F401
         import xarray  # noqa: F401
     except ImportError:
         raise SceneError(
