@@ -687,7 +687,10 @@ def test_fit_plot_labels_every_curve_and_axis(tmp_path, monkeypatch):
     report.plot_fit(tmp_path / "fit.png", result)
     (fig,) = figures
     axes = fig.axes
-    assert [ax.get_ylabel() for ax in axes] == ["cor_n (dimensionless)", "cor_t (dimensionless)"]
+    assert [ax.get_ylabel() for ax in axes] == [
+        "normal restitution, cor_n (dimensionless)",
+        "tangential restitution, cor_t (dimensionless)",
+    ]
     assert axes[-1].get_xlabel() == "impact speed (m/s)"
     for ax in axes:
         curves = [line for line in ax.get_lines() if line.get_linestyle() == "-"]
@@ -751,6 +754,8 @@ def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monk
         for ax in fig.axes:
             if ax.axison:
                 assert ax.get_tightbbox(renderer).y1 <= title.y0 + 1, "a panel overlaps the title"
+        if len(params) == 1:  # a histogram of readable size, not a small one under the title
+            assert fig.get_figwidth() >= 4.5 and fig.axes[0].get_position().height > 0.5
         s = summary["C_A"]
         assert fig.axes[0].get_title() == (
             f"C_A = {s['median']:.3g} s/m\n90 %: [{s['q05']:.3g}, {s['q95']:.3g}]"

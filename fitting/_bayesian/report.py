@@ -188,7 +188,10 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
     flat = result.draws.reshape(-1, p)
     pick = np.linspace(0, len(flat) - 1, min(max_points, len(flat))).astype(int)
     best = result.fit.values if result.fit is not None else None
-    fig, axes = plt.subplots(p, p, figsize=(2.4 * p, 2.4 * p), squeeze=False)
+    # one parameter: a histogram of readable size (2.4 inches would leave it small under the
+    # title)
+    size = 2.4 * p if p > 1 else 4.8
+    fig, axes = plt.subplots(p, p, figsize=(size, size * (0.75 if p == 1 else 1)), squeeze=False)
     for i in range(p):
         for j in range(p):
             ax = axes[i, j]
@@ -222,9 +225,10 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
     )
     # Wrapped to the figure's width (about 11 characters of 9-point text per inch), with room
     # above the panels for every line (tight_layout alone would let the title be cut).
-    lines = textwrap.wrap(title, int(11 * 2.4 * p))
+    height = size * (0.75 if p == 1 else 1)
+    lines = textwrap.wrap(title, int(11 * size))
     fig.suptitle("\n".join(lines), fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 1 - (0.1 + 0.2 * len(lines)) / (2.4 * p)))
+    fig.tight_layout(rect=(0, 0, 1, 1 - (0.1 + 0.2 * len(lines)) / height))
     _atomic_savefig(fig, Path(path))
     plt.close(fig)
 

@@ -259,9 +259,23 @@ def plot_fit(path, result: FitResult) -> None:
     plt.close(fig)
 
 
+#: What each observable is, for axis labels (the data file's column name follows).
+_DESCRIPTIONS = {
+    "cor_n": "normal restitution",
+    "cor_t": "tangential restitution",
+    "vt_out": "tangential rebound speed",
+    "omega_out": "rebound spin",
+    "rebound_angle_deg": "rebound angle",
+    "captured": "captured",
+}
+
+
 def observable_label(name: str) -> str:
-    """An axis label with the unit: ``omega_out (rad/s)``, ``cor_n (dimensionless)``."""
-    return f"{name} ({_UNITS[name] or 'dimensionless'})"
+    """An axis label in words with the data's column name and the unit: ``rebound angle,
+    rebound_angle_deg (deg)``, ``normal restitution, cor_n (dimensionless)``."""
+    words = _DESCRIPTIONS.get(name, "")
+    head = f"{words}, {name}" if words and words != name else name
+    return f"{head} ({_UNITS[name] or 'dimensionless'})"
 
 
 def parameter_label(name: str) -> str:
