@@ -14,6 +14,9 @@ Designs: ``weak``: 6 normal impacts, 0.6-8 m/s (C_A and f0 weakly determined, a 
 Run: ``python benchmarks/posterior_sbc.py --design weak --replications 200 --out sbc_weak.jsonl``
 (appends; a rerun continues where the file stops), then ``--report sbc_weak.jsonl
 sbc_well.jsonl`` for the table and the figure ``benchmarks/figures/posterior_sbc.png``.
+``--design weak --draws 1000 --grid-check 3 5 6`` recomputes those replications' data and
+compares SMC with the exact posterior on a grid: each parameter's probability below the truth
+(the quantity whose uniformity SBC tests), by both.
 """
 
 import argparse
@@ -100,6 +103,41 @@ def replication(folder, design, seed, draws):
     }
 
 
+def grid_check(design, seed, draws, points=36):
+    """Replication ``seed``'s data again, its exact posterior on a grid of the same log density
+    (``grid_reference(axes="parameters")``) and SMC's (``draws`` particles per population):
+    each parameter's posterior probability below the truth, by both."""
+    from fitting._bayesian.posterior import grid_reference
+
+    rng = np.random.default_rng(seed)
+    truth = {n: float(math.exp(rng.uniform(math.log(lo), math.log(hi)))) for n, (lo, hi) in
+             PRIOR.items()}  # fmt: skip
+    speed, angle = DESIGNS[design]
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "data.csv"
+        _write(data, speed, angle, np.full(speed.size, 0.5))
+        objective = fitting.Objective(jaximpact.table1_scene(), data, NAMES)
+        clean = 0.5 + SIGMA * np.asarray(objective.residuals([truth[n] for n in NAMES]))
+        _write(data, speed, angle, clean + SIGMA * rng.standard_normal(speed.size))
+        centre = {n: math.sqrt(lo * hi) for n, (lo, hi) in PRIOR.items()}
+        fit = fitting.fit(jaximpact.table1_scene(), data, NAMES, initial=centre, starts=1,
+                          progress=False)  # fmt: skip
+        grid = grid_reference(fit, _priors(), points=points, axes="parameters")["_grid"]
+        post = fitting.sample_posterior(
+            jaximpact.table1_scene(), data, NAMES, priors=_priors(), fit_result=fit,
+            draws=draws, seed=seed, progress=False,
+        )  # fmt: skip
+    flat = post.draws.reshape(-1, len(NAMES))
+    out = {}
+    for i, n in enumerate(NAMES):
+        centres, mass = grid.marginal(i)  # ln p
+        out[n] = (
+            float(mass[np.exp(centres) < truth[n]].sum()),
+            float(np.mean(flat[:, i] < truth[n])),
+        )
+    return out
+
+
 def chi_square(ranks):
     """p-value of the chi-square test of uniform ranks 0..RANKS over BINS equal bins."""
     from scipy.stats import chi2
@@ -156,11 +194,23 @@ def main(argv=None):
     ap.add_argument("--out", help="JSON lines, appended")
     ap.add_argument("--report", nargs="+", help="JSON lines files: print the table, plot")
     ap.add_argument(
+        "--grid-check", type=int, nargs="+", metavar="SEED",
+        help="these replications' exact (grid) posterior against SMC: P(parameter < truth)",
+    )  # fmt: skip
+    ap.add_argument(
         "--figure", default=str(Path(__file__).parent / "figures" / "posterior_sbc.png")
     )
     args = ap.parse_args(argv)
     if args.report:
         report(args.report, args.figure)
+        return 0
+    if args.grid_check:
+        print("| seed | " + " | ".join(f"{n}: grid / SMC" for n in NAMES) + " |")
+        print("|---" * (1 + len(NAMES)) + "|")
+        for seed in args.grid_check:
+            got = grid_check(args.design, seed, args.draws)
+            print(f"| {seed} | " + " | ".join(f"{g:.3f} / {m:.3f}" for g, m in got.values())
+                  + " |", flush=True)  # fmt: skip
         return 0
     out = Path(args.out)
     done = len(out.read_text().splitlines()) if out.exists() else 0
