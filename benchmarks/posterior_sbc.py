@@ -92,6 +92,8 @@ def replication(folder, design, seed, draws):
         "seed": seed,
         "truth": truth,
         "ranks": ranks,
+        # the share of all draws below the truth (uniform too; no subsampling of copies)
+        "p_below": {n: float(np.mean(flat[:, i] < truth[n])) for i, n in enumerate(NAMES)},
         "captured": int(np.sum(clean < 0)),
         "converged": bool(post.converged),
         "problems": post.problems,
