@@ -837,7 +837,9 @@ def sample_posterior(
         sampler=sampler,
         batch_log_density=_batch_log_density(
             sampled, names, prior_map, groups, len(noise), likelihood, nu
-        ),
+        )
+        if sampler == "independence"
+        else None,
         smc_batch=_x_batch_log_density(
             sampled, SamplingSpace(names, noise, prior_map), groups, likelihood, nu
         )

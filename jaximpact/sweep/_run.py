@@ -171,10 +171,11 @@ def run_sweep(
     if stored_precision not in (None, "float64", "float32"):
         raise SweepError(f"stored_precision: {stored_precision!r}; allowed: float64, float32")
     chosen = result_columns_for(columns)
-    if chosen is None and not restart:  # continuing: the sweep's own choice
-        chosen = _existing_result_columns(Path(output))
+    if chosen is None:  # continuing: the sweep's own choice (all columns if it made none)
+        own = _existing_setting(Path(output), "result_columns", restart)
+        chosen = tuple(own) if own else None
     if stored_precision is None:
-        own = None if restart else _existing_setting(Path(output), "stored_precision")
+        own = _existing_setting(Path(output), "stored_precision", restart)
         stored_precision = own or "float64"
     settings, digest = _settings(scene_path, source, chunk_size, dtype, chosen, stored_precision)
     n_chunks = settings["n_chunks"]
@@ -206,10 +207,8 @@ def run_sweep(
     }
     pipeline = _Pipeline(
         source, base, chunk_size, dtype, fn, sharding, directory, manifest, result_columns,
-        own_completed, own_failures,
+        own_completed, own_failures, compression=compression, stored=stored_precision,
     )  # fmt: skip
-    pipeline.compression = compression
-    pipeline.stored = stored_precision
     bar = _progress_bar(source, chunk_size, mine, todo, progress, directory, index, count)
     pipeline.run(todo, bar)
     legacy = chosen is None and result_columns != RESULT_COLUMNS  # begun before failure_reason
@@ -232,21 +231,6 @@ def result_columns_for(columns) -> tuple[str, ...] | None:
             f"allowed: {', '.join(RESULT_COLUMNS)}"
         )
     return tuple(c for c in RESULT_COLUMNS if c == "status" or c in names)
-
-
-def _existing_setting(directory: Path, name: str):
-    """A setting of the sweep in ``directory`` (None if there is no sweep or no such entry)."""
-    for _, manifest in _load_manifests(directory).values() if directory.is_dir() else ():
-        value = manifest.get("settings", {}).get(name)
-        if value:
-            return value
-    return None
-
-
-def _existing_result_columns(directory: Path) -> tuple[str, ...] | None:
-    """The result columns a sweep in ``directory`` was begun with, where it chose a subset."""
-    chosen = _existing_setting(directory, "result_columns")
-    return tuple(chosen) if chosen else None
 
 
 def _summary(
@@ -318,18 +302,28 @@ def _clear_for_restart(directory: Path, mine, index: int, count: int, n_chunks: 
     _clear(directory, keep)
 
 
-def _existing_chunk_size(directory: Path, restart: bool) -> int | None:
-    """The chunk size of the sweep in ``directory`` (``None``: none there, unreadable, or a
-    restart), so that continuing a sweep without ``chunk_size`` keeps its chunks."""
+def _existing_setting(directory: Path, name: str, restart: bool = False):
+    """The setting ``name`` the sweep in ``directory`` was begun with, where its manifests
+    agree on one (``None``: no sweep there, unreadable, a restart, or not set), so that
+    continuing a sweep without the option keeps the sweep's own."""
     if restart or not directory.is_dir():
         return None
     try:
         manifests = _load_manifests(directory)
     except SweepError:
         return None  # the run reports it
-    sizes = {(m.get("settings") or {}).get("chunk_size") for _, m in manifests.values()}
-    sizes = {x for x in sizes if isinstance(x, int) and x > 0}
-    return sizes.pop() if len(sizes) == 1 else None
+    values = {
+        json.dumps(v, sort_keys=True)
+        for _, m in manifests.values()
+        if (v := (m.get("settings") or {}).get(name)) is not None
+    }
+    return json.loads(values.pop()) if len(values) == 1 else None
+
+
+def _existing_chunk_size(directory: Path, restart: bool) -> int | None:
+    """The chunk size of the sweep in ``directory`` (see :func:`_existing_setting`)."""
+    size = _existing_setting(directory, "chunk_size", restart)
+    return size if isinstance(size, int) and size > 0 else None
 
 
 def _continued_manifests(directory: Path, settings, digest, index: int, count: int) -> dict:
@@ -375,7 +369,7 @@ class _Pipeline:
 
     def __init__(
         self, source, base, chunk_size, dtype, fn, sharding, directory, manifest, result_columns,
-        own_completed, own_failures,
+        own_completed, own_failures, compression=None, stored="float64",
     ):  # fmt: skip
         self.source, self.base, self.chunk_size, self.dtype = source, base, chunk_size, dtype
         self.fn, self.sharding, self.directory = fn, sharding, directory
@@ -388,8 +382,8 @@ class _Pipeline:
         self.failed = self.impacts_run = 0
         self.bar = None
         self.threads = writer_threads()
-        self.compression = None  # the part files' (parquet_options' default)
-        self.stored = "float64"  # the numeric result columns' precision
+        self.compression = compression  # the part files' (None: parquet_options' default)
+        self.stored = stored  # the numeric result columns' precision
 
     def launch(self, chunk: int):
         """Build chunk ``chunk``'s inputs and dispatch it (in the dispatcher thread)."""

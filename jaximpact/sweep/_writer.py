@@ -8,6 +8,7 @@ from collections import deque
 
 import numpy as np
 
+from .._io.tables import TEXT_RESULT_COLUMNS
 from ._chunks import _status_texts
 from ._store import _schema
 
@@ -26,7 +27,7 @@ COMPRESSIONS = ("none", "snappy", "lz4", "zstd")
 def parquet_options(input_columns, result_columns, compression=None) -> dict:
     """Keyword arguments of ``pyarrow.parquet.write_table`` for a part file (``compression``:
     one of :data:`COMPRESSIONS`; default :data:`COMPRESSION`)."""
-    text = [c for c in ("status", "failure_reason", "implausible") if c in result_columns]
+    text = [c for c in TEXT_RESULT_COLUMNS if c in result_columns]
     # statistics (min/max per page) for the inputs alone: what readers filter on (16 % of the
     # encoding's time for the result columns)
     return {
