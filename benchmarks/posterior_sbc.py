@@ -64,6 +64,14 @@ def _write(path, speed, angle, values):
     Path(path).write_text("\n".join(rows) + "\n")
 
 
+def _sampler_seed(seed):
+    """The sampler's seed of replication ``seed``: another stream than the one that drew the
+    truth and the noise (replications 1-200 of the weak design and 1-54 of the well one ran
+    with the data's own seed: the first three uniforms of the sampler's stream, which decide
+    whether its first particles come from the prior, were the truth's)."""
+    return seed + 1_000_003
+
+
 def replication(folder, design, seed, draws):
     """One calibration replication: the truth, its ranks and the run's diagnostics."""
     rng = np.random.default_rng(seed)
@@ -81,7 +89,7 @@ def replication(folder, design, seed, draws):
     t0 = time.perf_counter()
     post = fitting.sample_posterior(
         jaximpact.table1_scene(), data, NAMES, priors=_priors(), initial=centre, starts=1,
-        draws=draws, seed=seed, progress=False,
+        draws=draws, seed=_sampler_seed(seed), progress=False,
     )  # fmt: skip
     wall = time.perf_counter() - t0
     flat = post.draws.reshape(-1, len(NAMES))
@@ -90,6 +98,8 @@ def replication(folder, design, seed, draws):
     return {
         "design": design,
         "seed": seed,
+        "sampler_seed": _sampler_seed(seed),
+        "particles": draws,
         "truth": truth,
         "ranks": ranks,
         # the share of all draws below the truth (uniform too; no subsampling of copies)
@@ -127,7 +137,7 @@ def grid_check(design, seed, draws, points=36):
         grid = grid_reference(fit, _priors(), points=points, axes="parameters")["_grid"]
         post = fitting.sample_posterior(
             jaximpact.table1_scene(), data, NAMES, priors=_priors(), fit_result=fit,
-            draws=draws, seed=seed, progress=False,
+            draws=draws, seed=_sampler_seed(seed), progress=False,
         )  # fmt: skip
     flat = post.draws.reshape(-1, len(NAMES))
     out = {}
@@ -138,6 +148,78 @@ def grid_check(design, seed, draws, points=36):
             float(np.mean(flat[:, i] < truth[n])),
         )
     return out
+
+
+def _design_objective(folder, design):
+    """The design's objective (observed values are placeholders: the model's values at any
+    parameters are ``0.5 + SIGMA * residuals``)."""
+    speed, angle = DESIGNS[design]
+    data = Path(folder) / f"{design}_design.csv"
+    _write(data, speed, angle, np.full(speed.size, 0.5))
+    return fitting.Objective(jaximpact.table1_scene(), data, NAMES)
+
+
+def prior_bank(design, size, path):
+    """``size`` draws of the prior (log parameters ``L``) and the model's values ``M`` there
+    (cor_n continued below zero where it captures, as in the data), cached in ``path``."""
+    path = Path(path)
+    if path.exists():
+        bank = np.load(path)
+        if bank["L"].shape[0] == size:
+            return bank["L"], bank["M"]
+    rng = np.random.default_rng(12345)
+    L = np.stack([rng.uniform(math.log(lo), math.log(hi), size) for lo, hi in PRIOR.values()], 1)
+    with tempfile.TemporaryDirectory() as tmp:
+        residuals = jax.jit(jax.vmap(_design_objective(tmp, design).residuals))
+        M = np.concatenate(
+            [0.5 + SIGMA * np.asarray(residuals(np.exp(L[i : i + 4000])))
+             for i in range(0, size, 4000)]
+        )  # fmt: skip
+    np.savez(path, L=L, M=M)
+    return L, M
+
+
+def exact_check(design, seeds, bank, sbc_rows):
+    """The exact posterior of each replication by importance sampling of the prior bank (the
+    model's values at ``size`` prior draws; weights: the likelihood): each parameter's
+    probability below the truth, against the SMC run's (``p_below``, or rank / 99), and the
+    mean over replications, which is 0.5 in expectation for the exact posterior."""
+    L, M = bank
+    with tempfile.TemporaryDirectory() as tmp:
+        objective = _design_objective(tmp, design)
+        truths, noise = [], []
+        for seed in seeds:
+            rng = np.random.default_rng(seed)
+            truths.append([math.exp(rng.uniform(math.log(lo), math.log(hi)))
+                           for lo, hi in PRIOR.values()])  # fmt: skip
+            noise.append(SIGMA * rng.standard_normal(M.shape[1]))
+        T = np.array(truths)
+        clean = 0.5 + SIGMA * np.asarray(jax.jit(jax.vmap(objective.residuals))(T))
+    Y = clean + np.array(noise)
+    exact, ess, smc = [], [], []
+    for k, seed in enumerate(seeds):
+        log_w = -0.5 * np.sum(((M - Y[k]) / SIGMA) ** 2, axis=1)
+        w = np.exp(log_w - log_w.max())
+        ess.append(w.sum() ** 2 / np.sum(w * w))
+        exact.append([w[L[:, i] < math.log(T[k, i])].sum() / w.sum() for i in range(len(NAMES))])
+        row = sbc_rows.get(seed)
+        smc.append(
+            [np.nan] * len(NAMES) if row is None
+            else [row["p_below"][n] if "p_below" in row else row["ranks"][n] / RANKS
+                  for n in NAMES]
+        )  # fmt: skip
+    exact, smc = np.array(exact), np.array(smc)
+    have = np.all(np.isfinite(smc), axis=1)
+    print(f"{design}, replications {seeds[0]}-{seeds[-1]}: prior bank of {len(L)} draws, "
+          f"importance ESS median {np.median(ess):.0f} (min {min(ess):.0f})")  # fmt: skip
+    print("| parameter | exact: mean P(< truth) | SMC: mean | mean abs(SMC - exact) | corr |")
+    print("|---|---|---|---|---|")
+    half = math.sqrt(1 / 12 / len(seeds))
+    for i, n in enumerate(NAMES):
+        e, m = exact[have, i], smc[have, i]
+        print(f"| {n} | {exact[:, i].mean():.3f} (0.5 +- {half:.3f}) | "
+              + (f"{m.mean():.3f} | {np.abs(m - e).mean():.3f} | {np.corrcoef(e, m)[0, 1]:.3f} |"
+                 if have.any() else "- | - | - |"))  # fmt: skip
 
 
 def chi_square(ranks):
@@ -182,6 +264,17 @@ def report(paths, figure):
         med = float(np.median([r["wall_s"] for r in reps]))
         print(f"| {design} | {len(reps)} | {conv} | {cap} replications | {med:.1f} | "
               + " | ".join(f"{ps[n]:.3f}" for n in NAMES) + " |")  # fmt: skip
+        below = [r for r in reps if "p_below" in r]
+        if below:  # the share of all draws below the truth: uniform on (0, 1) too
+            line = []
+            for n in NAMES:
+                as_ranks = [min(int(r["p_below"][n] * (RANKS + 1)), RANKS) for r in below]
+                p_all, _ = chi_square(as_ranks)
+                mean = np.mean([r["p_below"][n] for r in below])
+                line.append(f"{n} p {p_all:.3f}, mean {mean:.3f} (uniform: 0.5 +- "
+                            f"{math.sqrt(1 / 12 / len(below)):.3f})")  # fmt: skip
+            print(f"  {design}, share of all draws below the truth ({len(below)} replications "
+                  "that store it): " + "; ".join(line))  # fmt: skip
     fig.supxlabel("rank of the true value among 99 posterior draws (10 bins); grey: 99 % band")
     fig.tight_layout()
     fig.savefig(figure, dpi=110)
@@ -192,7 +285,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--design", choices=list(DESIGNS))
     ap.add_argument("--replications", type=int, default=200)
-    ap.add_argument("--draws", type=int, default=250, help="particles per population (250)")
+    ap.add_argument("--draws", type=int, default=500, help="particles per population (500)")
     ap.add_argument("--out", help="JSON lines, appended")
     ap.add_argument("--report", nargs="+", help="JSON lines files: print the table, plot")
     ap.add_argument(
@@ -202,7 +295,24 @@ def main(argv=None):
     ap.add_argument(
         "--figure", default=str(Path(__file__).parent / "figures" / "posterior_sbc.png")
     )
+    ap.add_argument(
+        "--exact", type=int, nargs=2, metavar=("FIRST", "LAST"),
+        help="replications FIRST..LAST: the exact posterior by importance sampling of a prior "
+        "bank against SMC's (rows read from --out)",
+    )  # fmt: skip
+    ap.add_argument("--bank", help="the prior bank's cache (.npz; made if missing)")
+    ap.add_argument("--bank-size", type=int, default=400_000)
     args = ap.parse_args(argv)
+    if args.exact:
+        rows = {}
+        if args.out and Path(args.out).exists():
+            for line in Path(args.out).read_text().splitlines():
+                row = json.loads(line)
+                rows[row["seed"]] = row
+        bank_path = args.bank or Path(tempfile.gettempdir()) / f"sbc_bank_{args.design}.npz"
+        bank = prior_bank(args.design, args.bank_size, bank_path)
+        exact_check(args.design, list(range(args.exact[0], args.exact[1] + 1)), bank, rows)
+        return 0
     if args.report:
         report(args.report, args.figure)
         return 0

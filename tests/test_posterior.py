@@ -726,3 +726,34 @@ def test_smc_matches_a_grid_posterior_on_a_curved_ridge():
             se = math.sqrt(p * (1 - p) / ess) / norm.pdf(norm.ppf(p))
             assert errors[n][key] < 3.5 * se, (n, key, errors[n])
         assert 0.9 < errors[n]["sd_ratio"] < 1.1, (n, errors[n])
+
+
+@pytest.mark.slow  # a fit and a posterior through the CLI
+def test_cli_posterior_answers_where_the_fit_is_undetermined(tmp_path, capsys):
+    """Six normal impacts (0.6-8 m/s) leave C_A and f0 on a ridge: the least-squares
+    uncertainty is undefined (fit status "undetermined", which alone exits 3), the posterior
+    converges and is the answer: exit 0, the reason on stderr, both statuses in the JSON."""
+    truth = {"C_A": 1.1528318808167861, "C_H": 0.38847317692962374, "f0": 81.4828931222503}
+    speed = np.geomspace(0.6, 8.0, 6)
+    scene = fitting.Objective(
+        jaximpact.table1_scene(), _write_data(tmp_path / "p.csv", [1.0], [0.0], [0.5], 0.01), NAMES
+    ).scene_at(truth)
+    clean = np.asarray(jaximpact.simulate(scene, speed, 0.0, 0.0).cor_n)
+    noisy = clean + 0.003 * np.random.default_rng(200).standard_normal(clean.size)
+    data = _write_data(tmp_path / "d.csv", speed, np.zeros(6), noisy, 0.003)
+    out = tmp_path / "fit.json"
+    # the calibration's prior (benchmarks/posterior_sbc.py): a factor ~4 about Table 1's values
+    priors = ["C_A=loguniform:0.2:3", "C_H=loguniform:0.06:1", "f0=loguniform:75:1200"]
+    centre = ["C_A=0.7746", "C_H=0.2449", "f0=300"]
+    args = ["fit", "table1", str(data), "--params", *NAMES, "--init", *centre, "--starts", "1",
+            "--posterior", "--prior", *priors, "-o", str(out), "--no-progress"]  # fmt: skip
+    code = cli_main(args)
+    captured = capsys.readouterr()
+    d = json.loads(out.read_text())
+    assert d["status"] == "undetermined", captured.out
+    assert d["posterior"]["status"] == "converged", captured.err
+    assert code == 0, captured.err
+    assert "the posterior describes it" in captured.err
+    for n in NAMES:  # the truth inside the posterior's 5-95 % interval, widened by its sd
+        post = d["params"][n]["posterior"]
+        assert post["q05"] - post["sd"] < truth[n] < post["q95"] + post["sd"], (n, post)
