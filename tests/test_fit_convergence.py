@@ -194,7 +194,7 @@ def test_capture_start_walks_out_or_exits_3(micro, cache, near_fit, tmp_path):
     # Usually "cache" (traced and compiled by the fixture); in the full suite an earlier test's
     # global JAX settings can change the cache key, so only require a known source here (cache
     # reuse itself is tested by test_new_values_and_starts_reuse_the_compiled_program).
-    assert result["program"]["source"] in ("executable", "cache", "traced")
+    assert result["program"]["source"] in ("cache", "traced")
     # It left the capture region: the start's residual cost is far above the final one.
     assert result["starts"][0]["steps"] > 1
     if run.returncode == 0:
@@ -242,11 +242,38 @@ def test_second_process_loads_the_compiled_program(micro, tmp_path):
         run = subprocess.run([*cmd, "-o", str(out)], capture_output=True, text=True, env=env)
         assert run.returncode == 0, run.stderr
         results.append(json.loads(out.read_text()))
-    assert [r["program"]["source"] for r in results] == ["traced", "executable"]
+    assert [r["program"]["source"] for r in results] == ["traced", "cache"]
     assert [p["value"] for p in results[0]["params"].values()] == [
         p["value"] for p in results[1]["params"].values()
     ]
-    assert list((tmp_path / "cache" / "compiled").glob("fit-*.executable"))
+
+
+def test_cached_fit_program_runs_after_other_programs(micro, tmp_path):
+    """A process that compiles another program first (a notebook's ``simulate``, then a
+    fit) runs the fit's program from the cache and gives the numbers of a process that did
+    not. (The compiled executables once kept with ``jax.experimental.serialize_executable``
+    failed in such a process with XLA's "NOT_FOUND: Function ... not found", seen with one
+    cache's state and not reproduced from an empty cache: they are no longer kept, see
+    ``jaximpact._io.cache``.)"""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["JAXIMPACT_CACHE_DIR"] = str(tmp_path / "cache")
+    code = (
+        "import sys, jax, numpy as np\n"
+        "jax.config.update('jax_enable_x64', True)\n"
+        "import jaximpact, fitting\n"
+        "if sys.argv[1] == 'after':\n"
+        "    np.asarray(jaximpact.simulate(jaximpact.table1_scene(), 1.0, 30.0).cor_n)\n"
+        f"r = fitting.fit(jaximpact.table1_scene(), {str(micro['data'])!r}, {NAMES!r},\n"
+        f"                initial={NEAR!r}, starts=1, progress=False)\n"
+        "print(r.status, *r.theta)\n"
+    )
+    out = []
+    for order in ("alone", "after"):
+        run = subprocess.run([sys.executable, "-c", code, order], capture_output=True,
+                             text=True, env=env, timeout=600)  # fmt: skip
+        assert run.returncode == 0, run.stderr[-2000:]
+        out.append(run.stdout.split())
+    assert out[0][0] == "converged" and out[0] == out[1]
 
 
 def test_cache_dir_from_environment(monkeypatch, tmp_path):

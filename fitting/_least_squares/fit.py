@@ -114,8 +114,8 @@ class FitResult:
             ``total`` (including data loading and checks).
         solver, jacobian: ``"lm"``, ``"adam"`` or ``"lbfgs"``; ``"fwd"`` or ``"rev"``.
         program: counts of the residual program's ``traces``, ``compiles`` and ``calls``, and
-            where it came from (``source``: traced, cache (traced before), executable
-            (compiled before) or memory).
+            where it came from (``source``: traced, cache (traced before; compiled, or
+            loaded from JAX's compilation cache) or memory).
         starts: every start, best first.
         residuals: the weighted residuals at the optimum.
         scene: the scene with the fitted values in place.

@@ -142,8 +142,7 @@ class ResidualProgram:
             _MEMORY.popitem(last=False)
         self.compile_seconds = time.perf_counter() - t0
         if status:
-            how = {"executable": "loaded compiled program", "cache": "loaded traced program"}
-            how = how.get(source, "traced")
+            how = "loaded traced program" if source == "cache" else "traced"
             print(f" {self.compile_seconds:.1f} s ({how})", file=sys.stderr, flush=True)
         return self.compile_seconds
 

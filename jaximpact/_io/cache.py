@@ -219,73 +219,25 @@ def _digest(args, *parts) -> str:
 
 # --- compiled programs ------------------------------------------------------------------------
 #
-# A program loaded from the traced cache is still lowered again (0.2 s for the fit's) and looked
-# up in JAX's compilation cache (0.35 s) by each process; its executable, serialized with
-# `jax.experimental.serialize_executable`, loads in 0.2 s (the fit's program: a warm fit 0.35 s
-# faster). An executable is machine code for this CPU under these XLA settings: its key adds the
-# XLA options and flags, the device count and the processor's model and features.
-
-_EXECUTABLE_SUBDIR = "compiled"
-
-
-def _machine() -> str:
-    """The processor and XLA settings an executable is compiled for."""
-    import platform
-
-    import jax
-
-    cpu = ""
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith(("model name", "flags", "Features")):
-                cpu += line
-            if line == "":  # the first processor's lines are enough
-                break
-    return "|".join(
-        (platform.machine(), cpu, os.environ.get("XLA_FLAGS", ""), str(len(jax.devices())))
-    )
+# A program loaded from the traced cache is lowered again (0.2 s for the fit's) and found in
+# JAX's compilation cache (0.35 s) by each process. Its compiled executable was once kept too
+# (`jax.experimental.serialize_executable`, 0.35 s faster per warm fit), but that loads it
+# without its XLA compile options, and on a CPU such an executable failed at its first run in
+# a process that had compiled other programs before ("NOT_FOUND: Function
+# slice_exponential_fusion.2 not found", 2026-11-26, jax 0.10.2); JAX's own cache passes the
+# options and has not failed so.
 
 
 def compiled_program(name: str, fn, args, key: str, options: dict | None = None):
-    """``fn`` compiled at the shapes of ``args`` with XLA ``options``, loaded as an executable
-    when the cache holds one (no tracing, lowering or lookup), else built from
-    :func:`cached_program` and compiled, and stored for the next process.
+    """``fn`` compiled at the shapes of ``args`` with XLA ``options``: its traced program from
+    :func:`cached_program`, compiled through JAX's compilation cache (a warm process loads the
+    executable from there).
 
-    **Returns:** ``(compiled, source)``: ``source`` is ``"executable"`` (loaded compiled),
-    ``"cache"`` (loaded traced) or ``"traced"``.
+    **Returns:** ``(compiled, source)``: ``source`` is ``"cache"`` (loaded traced) or
+    ``"traced"``.
     """
-    import pickle
-
-    import jax
-    from jax.experimental import serialize_executable
-
-    directory = jax.config.jax_compilation_cache_dir
-    path = None
-    if directory:
-        digest = _digest(args, key, repr(sorted((options or {}).items())), _machine())
-        path = Path(directory) / _EXECUTABLE_SUBDIR / f"{name}-{digest}.executable"
-        try:
-            payload, in_tree, out_tree, ids = pickle.loads(path.read_bytes())
-            devices = {d.id: d for d in jax.devices()}
-            compiled = serialize_executable.deserialize_and_load(
-                payload, in_tree, out_tree, execution_devices=[devices[i] for i in ids]
-            )
-            return compiled, "executable"
-        except Exception:  # missing, unreadable or from another JAX: compile and replace it
-            pass
     program, source = cached_program(name, fn, args, key)
-    compiled = program.lower(*args).compile(options)
-    if path is not None:
-        try:
-            from .tables import atomic_write_bytes
-
-            ids = [d.id for d in compiled.runtime_executable().local_devices()]
-            data = pickle.dumps((*serialize_executable.serialize(compiled), ids))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(path, data)
-        except Exception:  # not serializable here, or not writable: the next process compiles
-            pass
-    return compiled, source
+    return program.lower(*args).compile(options), source
 
 
 @contextlib.contextmanager
