@@ -757,3 +757,37 @@ def test_cli_posterior_answers_where_the_fit_is_undetermined(tmp_path, capsys):
     for n in NAMES:  # the truth inside the posterior's 5-95 % interval, widened by its sd
         post = d["params"][n]["posterior"]
         assert post["q05"] - post["sd"] < truth[n] < post["q95"] + post["sd"], (n, post)
+
+
+def test_predictive_plot_shows_a_model_the_posterior_leaves_certain(monkeypatch, tmp_path):
+    """Rolling impacts below the sliding angle have cor_t = 5/7 at every posterior draw: the
+    model's 90 % band has zero width there, and the plot still shows the model (its median
+    line through those values) beside the data."""
+    from types import SimpleNamespace
+
+    from fitting._bayesian import report
+
+    angle = np.array([10.0, 20.0, 40.0, 60.0])
+    obs = SimpleNamespace(
+        speed=np.full(4, 1.0), angle_deg=angle, observable=np.array(["cor_t"] * 4),
+        value=np.array([0.71, 0.72, 0.6, 0.5]), sigma=np.full(4, 0.01),
+    )  # fmt: skip
+    rng = np.random.default_rng(0)
+    model = np.tile([5 / 7, 5 / 7, 0.6, 0.5], (50, 1))
+    model[:, 2:] += 0.02 * rng.standard_normal((50, 2))
+    predicted = model + 0.01 * rng.standard_normal(model.shape)
+    monkeypatch.setattr(report, "posterior_predictive", lambda result, n: (model, predicted))
+    figures = []
+    monkeypatch.setattr(report, "_atomic_savefig", lambda fig, path: figures.append(fig))
+    summary = {"friction": {"median": 0.3, "q05": 0.25, "q95": 0.35}}
+    result = SimpleNamespace(
+        fit=SimpleNamespace(objective=SimpleNamespace(observations=obs)),
+        params=("friction",), summary=summary,
+    )  # fmt: skip
+    report.plot_predictive(tmp_path / "p.png", result)
+    (ax,) = figures[0].axes
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    median = lines["model median"]
+    np.testing.assert_allclose(median.get_xdata(), angle)
+    np.testing.assert_allclose(median.get_ydata()[:2], 5 / 7)
+    assert median.get_visible() and median.get_linewidth() > 0

@@ -264,6 +264,11 @@ def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
                 alpha=0.35 if band is predicted else 0.9,
                 label=label,
             )
+        # The model's median as a line: where the posterior leaves the model certain (rolling
+        # impacts below the sliding angle: cor_t is 5/7 whatever the parameters) its band has
+        # zero width and would be invisible.
+        ax.plot(x[order], np.median(model[:, order], axis=0), "_-", color="C1", lw=1, ms=8,
+                label="model median")  # fmt: skip
         sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
         ax.errorbar(
             x[sel],
