@@ -92,7 +92,7 @@ def test_capture_boundary_and_random_points(law, scene):
     assert np.all(np.isfinite(err) == ~captured)  # a value wherever both rebound
 
 
-def compile_c(tmp_path, law, extra_source: str, name: str):
+def compile_c(tmp_path, law, extra_source: str, name: str, defines=()):
     if GCC is None:
         pytest.skip("no C compiler")
     from jaximpact.wall_law import c_header
@@ -102,11 +102,13 @@ def compile_c(tmp_path, law, extra_source: str, name: str):
     src.write_text(extra_source)
     lib = tmp_path / f"lib{name}.so"
     flags = ["-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror", "-shared", "-fPIC"]
-    subprocess.run(
+    flags += [f"-D{d}" for d in defines]
+    run = subprocess.run(
         [GCC, *flags, f"-I{tmp_path}", "-o", str(lib), str(src), "-lm"],
-        check=True,
         capture_output=True,
+        text=True,
     )
+    assert run.returncode == 0, run.stderr
     return ctypes.CDLL(str(lib))
 
 
@@ -174,56 +176,210 @@ def test_c_header_against_simulate_on_random_points(law, scene, tmp_path):
 
 
 FAKE_UDF_H = """/* the few Fluent names the UDF uses, for a compile-and-run check without Fluent */
+#include <math.h>
+#include <stdio.h>
+#ifdef SINGLE
+typedef float real;
+#else
 typedef double real;
-typedef struct { real vel[3]; real diam; } Tracked_Particle;
+#endif
+typedef struct {
+    real vel[3], vel0[3], pos[3], diam, rho, mass, n;
+    int type;
+} Tracked_Particle;
+typedef struct { int id; real udm[2]; } Thread;
+typedef int face_t;
 #define TP_VEL(tp) ((tp)->vel)
+#define TP_VEL0(tp) ((tp)->vel0)
+#define TP_POS(tp) ((tp)->pos)
 #define TP_DIAM(tp) ((tp)->diam)
+#define TP_RHO(tp) ((tp)->rho)
+#define TP_MASS(tp) ((tp)->mass)
+#define TP_N(tp) ((tp)->n)
+#define TP_TYPE(tp) ((tp)->type)
+#define DPM_TYPE_INERT 0
+#define THREAD_ID(t) ((t)->id)
+#define NNULLP(p) ((p) != NULL)
+#define F_UDMI(f, t, i) ((t)->udm[i])
+#define Message printf
 #define PATH_ACTIVE 0
 #define PATH_END 2
+#define PATH_ABORT 3
+#ifndef RP_2D
+#define RP_2D 0
+#endif
+#if RP_2D
+int rp_axi_swirl = 0;
+#endif
 #define DEFINE_DPM_BC(name, tp, t, f, f_normal, dim) \\
-    int name(Tracked_Particle *tp, void *t, int f, real *f_normal, int dim)
-#include <math.h>
+    int name(Tracked_Particle *tp, Thread *t, face_t f, real *f_normal, int dim)
+#define DEFINE_ON_DEMAND(name) void name(void)
 """
 
 UDF_SHIM = """
-int bounce(double d, double *vel, double *normal)
+/* one impact: the particle (diameter, density, type), wall id, dim, velocity in/out, face
+   normal, position; TP_VEL0 after it and the wall's deposit memory (UDM 1) */
+int bounce(double d, double rho, int type, int wall, int dim, double *vel, double *normal,
+           double *pos, double *vel0, double *deposit)
 {
     Tracked_Particle tp;
+    Thread th;
+    real nrm[3];
     int i, code;
-    tp.diam = d;
-    for (i = 0; i < 3; i++) tp.vel[i] = vel[i];
-    code = jaximpact_wall_law_bc(&tp, 0, 0, normal, 3);
-    for (i = 0; i < 3; i++) vel[i] = tp.vel[i];
+    th.id = wall;
+    th.udm[0] = th.udm[1] = 0.0;
+    tp.diam = d; tp.rho = rho; tp.mass = 2.0; tp.n = 3.0; tp.type = type;
+    for (i = 0; i < 3; i++) {
+        tp.vel[i] = vel[i]; tp.vel0[i] = -1.0; tp.pos[i] = pos[i]; nrm[i] = normal[i];
+    }
+    code = jaximpact_wall_law_bc(&tp, &th, 0, nrm, dim);
+    for (i = 0; i < 3; i++) { vel[i] = tp.vel[i]; vel0[i] = tp.vel0[i]; }
+    *deposit = th.udm[1];
     return code;
+}
+long count(int wall, int which)
+{
+    int k;
+    for (k = 0; k < jaximpact_wl_n_walls; k++)
+        if (jaximpact_wl_wall_ids[k] == wall)
+            return which ? jaximpact_wl_other_type[k] : jaximpact_wl_clamped[k];
+    return 0;
+}
+void set_swirl(int on)
+{
+#if RP_2D
+    rp_axi_swirl = on;
+#else
+    (void)on;
+#endif
 }
 """
 
+PATH_ACTIVE, PATH_END, PATH_ABORT = 0, 2, 3
 
-def test_fluent_udf_logic_with_a_stand_in_udf_h(law, tmp_path):
-    """The UDF compiled against a stand-in udf.h: its velocities are the wall law's for
-    either orientation of the face normal."""
+
+def fluent_udf(law, tmp_path, name, defines=()):
+    """The UDF compiled against the stand-in udf.h; returns ``bounce(diameter, velocity,
+    normal, ...) -> (code, velocity, TP_VEL0, deposit)`` and the library."""
     from jaximpact.wall_law._codegen import _fill, _template
 
     (tmp_path / "udf.h").write_text(FAKE_UDF_H)
     udf = _fill(_template("fluent/jaximpact_dpm_bc.c"), {"VERSION": "x", "SCENE": "table1"})
-    lib = compile_c(tmp_path, law, udf + UDF_SHIM, "udf")
+    lib = compile_c(tmp_path, law, udf + UDF_SHIM, name, defines)
     P = ctypes.POINTER(ctypes.c_double)
-    lib.bounce.argtypes = [ctypes.c_double, P, P]
+    lib.bounce.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_int,
+                           ctypes.c_int, P, P, P, P, P]  # fmt: skip
+    lib.count.restype = ctypes.c_long
+    density = float(law.scene["particle.density"])
+
+    def bounce(diameter, vel, normal, pos=(0.0, 0.0, 0.0), rho=density, kind=0, wall=7, dim=3):
+        v, v0, dep = (ctypes.c_double * 3)(*vel), (ctypes.c_double * 3)(), ctypes.c_double()
+        code = lib.bounce(diameter, rho, kind, wall, dim, v, (ctypes.c_double * 3)(*normal),
+                          (ctypes.c_double * 3)(*pos), v0, ctypes.byref(dep))  # fmt: skip
+        return code, np.array(v[:]), np.array(v0[:]), dep.value
+
+    return bounce, lib
+
+
+@pytest.mark.parametrize("precision", ["double", "single"])
+def test_fluent_udf_logic_with_a_stand_in_udf_h(law, tmp_path, precision):
+    """The UDF compiled against a stand-in udf.h, in double and single precision: its
+    velocities are the wall law's for either orientation of the face normal, stored as the
+    particle's step-start velocity (TP_VEL0) too; a capture traps the particle."""
+    single = precision == "single"
+    bounce, _ = fluent_udf(law, tmp_path, "udf", ["SINGLE"] if single else [])
+    tol = dict(rtol=2e-5, atol=2e-6) if single else dict(rtol=1e-12, atol=1e-14)
     rng = np.random.default_rng(2)
     r = law.radius[0]
+    codes = set()
     for _ in range(20):
         vn, vt = rng.uniform(0.02, 2.0), rng.uniform(0.0, 2.0)
         e_t = np.array([np.cos(a := rng.uniform(0, 6.28)), np.sin(a), 0.0])
         v = vt * e_t + np.array([0.0, 0.0, -vn])  # toward the wall z = 0 (from z > 0)
         code, vn_out, vt_out, _ = law.evaluate(r, vn, vt, 0.0)
+        codes.add(int(code))
         want = vt_out * e_t + np.array([0.0, 0.0, vn_out])
         for sign in (1.0, -1.0):
-            vel = (ctypes.c_double * 3)(*v)
-            normal = (ctypes.c_double * 3)(0.0, 0.0, 2.5 * sign)
-            got = lib.bounce(2 * r, vel, normal)
-            assert got == (2 if code & 1 else 0)
+            got, vel, vel0, deposit = bounce(2 * r, v, (0.0, 0.0, 2.5 * sign))
+            assert got == (PATH_END if code & 1 else PATH_ACTIVE)
+            assert deposit == 0.0  # no deposit memory unless asked for
             if not code & 1:
-                np.testing.assert_allclose(np.array(vel[:]), want, rtol=1e-12, atol=1e-14)
+                np.testing.assert_allclose(vel, want, **tol)
+                np.testing.assert_array_equal(vel0, vel)
+    assert 0 in codes
+    slow = law.capture_speed[0, 0, 0] * np.cos(np.radians(ANGLES[0])) / 2
+    v_slow = (slow * np.tan(np.radians(ANGLES[0])), 0.0, -slow)  # at the table's first angle
+    assert law.evaluate(r, slow, v_slow[0], 0.0)[0] == 1  # captured
+    assert bounce(2 * r, v_slow, (0.0, 0.0, 1.0))[0] == PATH_END
+
+
+def test_fluent_udf_outside_the_table_is_counted_per_wall_with_each_fallback(law, tmp_path):
+    """A radius 3x the table's: counted on its own wall, and clamped (the table's edge),
+    trapped (its mass into the deposit memory) or rebounding with constant coefficients, as
+    JAXIMPACT_WL_ON_CLAMP says."""
+    r = 3 * law.radius[-1]
+    vn, vt = 1.5, 0.8
+    v = np.array([vt, 0.0, -vn])
+    normal = (0.0, 0.0, 1.0)
+    code, vn_out, vt_out, _ = law.evaluate(r, vn, vt, 0.0)
+    assert code == 2  # clamped rebound
+    for fallback in (0, 1, 2):
+        defines = [f"JAXIMPACT_WL_ON_CLAMP={fallback}", "JAXIMPACT_WL_DEPOSIT_UDM=1",
+                   "JAXIMPACT_WL_FALLBACK_EN=0.4", "JAXIMPACT_WL_FALLBACK_ET=0.9"]  # fmt: skip
+        bounce, lib = fluent_udf(law, tmp_path, f"udf_clamp{fallback}", defines)
+        results = [bounce(2 * r, v, normal, wall=w) for w in (3, 3, 5)]
+        assert [lib.count(w, 0) for w in (3, 5, 9)] == [2, 1, 0]
+        got, vel, _, deposit = results[0]
+        if fallback == 0:
+            assert got == PATH_ACTIVE
+            np.testing.assert_allclose(vel, [vt_out, 0.0, vn_out], rtol=1e-12)
+        elif fallback == 1:
+            assert got == PATH_END and deposit == 2.0 * 3.0  # mass x particles in the parcel
+        else:
+            assert got == PATH_ACTIVE
+            np.testing.assert_allclose(vel, [0.9 * vt, 0.0, 0.4 * vn], rtol=1e-12)
+        # inside the table nothing is counted
+        bounce(2 * law.radius[0], v, normal, wall=9)
+        assert lib.count(9, 0) == 0
+
+
+def test_fluent_udf_aborts_other_particle_types_unless_told(law, tmp_path):
+    r = law.radius[0]
+    v = np.array([0.5, 0.0, -2.0])
+    bounce, lib = fluent_udf(law, tmp_path, "udf_type")
+    got, vel, _, _ = bounce(2 * r, v, (0.0, 0.0, 1.0), kind=1)  # a droplet, say
+    assert got == PATH_ABORT and lib.count(7, 1) == 1
+    np.testing.assert_array_equal(vel, v)
+    bounce_any, _ = fluent_udf(law, tmp_path, "udf_any", ["JAXIMPACT_WL_ANY_TYPE"])
+    assert bounce_any(2 * r, v, (0.0, 0.0, 1.0), kind=1)[0] == PATH_ACTIVE
+
+
+def test_fluent_udf_axisymmetric_swirl_keeps_the_swirl_in_the_impact(law, tmp_path):
+    """2D axisymmetric with swirl: the face normal (radial, from the 2D mesh) is turned to the
+    particle's position about the axis, so the swirl velocity is part of the tangential
+    speed, and the rebound is the 3D law's; without swirl only the 2 planar components."""
+    bounce, lib = fluent_udf(law, tmp_path, "udf_2d", ["RP_2D=1"])
+    r = law.radius[0]
+    pos = (0.1, 0.03, 0.04)  # x (axis), y, z: radius 0.05 from the axis
+    n3 = np.array([0.0, 0.6, 0.8])  # the radial direction at the particle
+    vel = np.array([0.7, 1.2, 1.6]) + np.array([0.0, -0.8, 0.6]) * 0.9  # in + swirl
+    vn = float(vel @ n3)
+    tang = vel - vn * n3
+    vt = float(np.linalg.norm(tang))
+    code, vn_out, vt_out, _ = law.evaluate(r, vn, vt, 0.0)
+    assert code == 0
+    lib.set_swirl(1)
+    got, out, _, _ = bounce(2 * r, vel, (0.0, -2.0, 0.0), pos=pos, dim=2)
+    assert got == PATH_ACTIVE
+    np.testing.assert_allclose(out, vt_out * tang / vt - vn_out * n3, rtol=1e-12, atol=1e-14)
+    assert abs(out[2] - vel[2]) > 0.1  # the swirl component changed
+    lib.set_swirl(0)  # planar 2D: the third component is left alone
+    n2 = np.array([0.0, 1.0, 0.0])
+    v2 = np.array([0.7, 1.5, 0.0])
+    code2, vn2, vt2, _ = law.evaluate(r, 1.5, 0.7, 0.0)
+    got, out, _, _ = bounce(2 * r, v2, (0.0, 3.0, 0.0), pos=pos, dim=2)
+    want = np.array([vt2, 0.0, 0.0]) - vn2 * n2 if not code2 & 1 else v2
+    np.testing.assert_allclose(out, want, rtol=1e-12, atol=1e-14)
 
 
 def test_files_netcdf_parquet_and_code(law, tmp_path):

@@ -100,6 +100,8 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 #define JAXIMPACT_WL_NX {X}
 /* 1: the speed axis is the speed over the capture speed; 0: the speed in m/s */
 #define JAXIMPACT_WL_CAPTURE_RATIO {1 if capture else 0}
+/* the sphere's density the table was made for, kg/m^3 */
+#define JAXIMPACT_WL_DENSITY {float(law.scene["particle.density"])!r}
 
 """,
         "/* log(radius / m) */\n" + _array("jaximpact_wl_log_radius", np.log(law.radius)),

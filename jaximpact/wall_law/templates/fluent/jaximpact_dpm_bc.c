@@ -3,52 +3,179 @@
 
    Build as a compiled UDF (Define > User-Defined > Functions > Compiled) with this file and
    jaximpact_wall_law.h in the source list, then hook "jaximpact_wall_law_bc" as the wall's
-   discrete-phase boundary condition type "user_defined".
+   discrete-phase boundary condition type "user_defined". It compiles in single and double
+   precision, 3D and 2D (planar, axisymmetric, axisymmetric with swirl).
 
-   For each particle hitting the wall: the velocity relative to the wall is split into the
-   normal part (toward the wall) and the tangential part; the particle's diameter gives the
-   radius; no spin is passed (Fluent's particles carry none by default). A captured particle
-   is trapped (PATH_END, like the "trap" condition); a rebounding one leaves with the table's
-   normal and tangential speeds along the same tangent. Moving walls are not accounted for
-   (the wall is taken at rest). Not compiled or run by jaximpact's tests (no Fluent here). */
+   For each inert particle hitting the wall: the velocity relative to the wall is split into
+   the normal part (toward the wall) and the tangential part; the particle's diameter gives
+   the radius; no spin is passed (Fluent's particles carry none by default). A captured
+   particle is trapped (PATH_END, like the "trap" condition) and, with
+   JAXIMPACT_WL_DEPOSIT_UDM set, its mass is added to that face user-defined memory; a
+   rebounding one leaves with the table's normal and tangential speeds along the same
+   tangent, stored as its velocity at the start of the step too (TP_VEL0), as Fluent's own
+   reflecting conditions do. In axisymmetric swirl cases the face normal is turned about the
+   axis to the particle's position, so the swirl component takes part in the impact. Moving
+   walls are not accounted for (the wall is taken at rest). Other particle types (droplets,
+   combusting, multicomponent) are not what the table describes: their tracks are aborted
+   (PATH_ABORT) and counted, unless JAXIMPACT_WL_ANY_TYPE is defined.
+
+   Impacts outside the table (radius, angle, speed or spin beyond its nodes) are counted per
+   wall; the first one on each wall is reported with Message(), and JAXIMPACT_WL_ON_CLAMP says
+   what happens to them (below). A particle density more than 1 % from the table's is reported
+   once. The DEFINE_ON_DEMAND function "jaximpact_wall_law_report" prints the counts per wall
+   (on each process that tracked particles).
+
+   Settings: define them before building (for instance in the compiled UDF's "Header" or
+   with -D) to change the defaults below. */
 
 #include "udf.h"
 #include "jaximpact_wall_law.h"
 
+/* Impacts outside the table: 0 the table's edge values (clamped), 1 trap the particle,
+   2 rebound with the constant coefficients JAXIMPACT_WL_FALLBACK_EN (normal) and
+   JAXIMPACT_WL_FALLBACK_ET (tangential). */
+#ifndef JAXIMPACT_WL_ON_CLAMP
+#define JAXIMPACT_WL_ON_CLAMP 0
+#endif
+#ifndef JAXIMPACT_WL_FALLBACK_EN
+#define JAXIMPACT_WL_FALLBACK_EN 0.5
+#endif
+#ifndef JAXIMPACT_WL_FALLBACK_ET
+#define JAXIMPACT_WL_FALLBACK_ET 1.0
+#endif
+/* Face user-defined memory that accumulates the mass of trapped particles (kg), or -1 for
+   none; it must be allocated in Fluent (User-Defined Memory). JAXIMPACT_WL_DEPOSITED(tp) is
+   the mass a trapped particle carries: its mass times the particles it stands for (unsteady
+   tracking); for steady tracking redefine it, e.g. as the mass flow rate times the time step
+   of interest. */
+#ifndef JAXIMPACT_WL_DEPOSIT_UDM
+#define JAXIMPACT_WL_DEPOSIT_UDM -1
+#endif
+#ifndef JAXIMPACT_WL_DEPOSITED
+#define JAXIMPACT_WL_DEPOSITED(tp) (TP_MASS(tp) * TP_N(tp))
+#endif
+
+/* Counts per wall (thread id): impacts outside the table, and particles not inert. */
+#define JAXIMPACT_WL_MAX_WALLS 256
+static int jaximpact_wl_wall_ids[JAXIMPACT_WL_MAX_WALLS];
+static long jaximpact_wl_clamped[JAXIMPACT_WL_MAX_WALLS];
+static long jaximpact_wl_other_type[JAXIMPACT_WL_MAX_WALLS];
+static int jaximpact_wl_n_walls = 0;
+static int jaximpact_wl_density_reported = 0;
+
+/* The counters' slot of wall `id` (walls beyond JAXIMPACT_WL_MAX_WALLS share the last one). */
+static int jaximpact_wl_slot(int id)
+{
+    int k;
+    for (k = 0; k < jaximpact_wl_n_walls; k++)
+        if (jaximpact_wl_wall_ids[k] == id)
+            return k;
+    if (jaximpact_wl_n_walls == JAXIMPACT_WL_MAX_WALLS)
+        return JAXIMPACT_WL_MAX_WALLS - 1;
+    jaximpact_wl_wall_ids[jaximpact_wl_n_walls] = id;
+    return jaximpact_wl_n_walls++;
+}
+
 DEFINE_DPM_BC(jaximpact_wall_law_bc, tp, t, f, f_normal, dim)
 {
-    real vn = 0.0, vt = 0.0, ut[3] = {0.0, 0.0, 0.0}, nrm[3] = {0.0, 0.0, 0.0};
-    double vn_out = 0.0, vt_out = 0.0, omega_out = 0.0, norm = 0.0;
-    int i, code;
-    (void)t; /* the wall thread and face are not needed */
-    (void)f;
+    real nrm[3] = {0.0, 0.0, 0.0}, ut[3] = {0.0, 0.0, 0.0};
+    double vn = 0.0, vt = 0.0, vn_out = 0.0, vt_out = 0.0, omega_out = 0.0, norm = 0.0;
+    double radius = 0.5 * TP_DIAM(tp);
+    int i, code, slot, n = dim;
+    (void)f; /* the face: only for the deposit's user-defined memory */
 
-    /* f_normal: the face normal; orient it out of the domain (into the wall) so that the
-       normal speed toward the wall is positive */
+    slot = jaximpact_wl_slot(NNULLP(t) ? THREAD_ID(t) : -1);
+#ifndef JAXIMPACT_WL_ANY_TYPE
+    if (TP_TYPE(tp) != DPM_TYPE_INERT) {
+        if (jaximpact_wl_other_type[slot]++ == 0)
+            Message("jaximpact wall law: wall %d: a particle that is not inert (type %d): its "
+                    "track is aborted (the table is for rigid spheres; define "
+                    "JAXIMPACT_WL_ANY_TYPE to apply it to every type)\n",
+                    jaximpact_wl_wall_ids[slot], (int)TP_TYPE(tp));
+        return PATH_ABORT;
+    }
+#endif
+    if (!jaximpact_wl_density_reported &&
+        fabs(TP_RHO(tp) - JAXIMPACT_WL_DENSITY) > 0.01 * JAXIMPACT_WL_DENSITY) {
+        jaximpact_wl_density_reported = 1;
+        Message("jaximpact wall law: particle density %g kg/m^3, the table's is %g kg/m^3: "
+                "the table does not describe these particles (reported once)\n",
+                (double)TP_RHO(tp), (double)JAXIMPACT_WL_DENSITY);
+    }
+
+    /* The wall normal. In 2D, dim is 2; with swirl the particle's velocity has a third
+       (swirl) component, and the 3D normal at the particle is the face normal's radial part
+       turned to the particle's position (y, z) about the x axis. */
     for (i = 0; i < dim; i++)
-        norm += f_normal[i] * f_normal[i];
+        nrm[i] = f_normal[i];
+#if RP_2D
+    if (rp_axi_swirl) {
+        double y = TP_POS(tp)[1], z = TP_POS(tp)[2], r_axis = sqrt(y * y + z * z);
+        if (r_axis > 1e-20) {
+            n = 3;
+            nrm[1] = f_normal[1] * y / r_axis;
+            nrm[2] = f_normal[1] * z / r_axis;
+        }
+    }
+#endif
+    /* orient the normal out of the domain (into the wall): normal speed toward it positive */
+    for (i = 0; i < n; i++)
+        norm += (double)nrm[i] * nrm[i];
     norm = sqrt(norm);
-    for (i = 0; i < dim; i++) {
-        nrm[i] = f_normal[i] / norm;
+    for (i = 0; i < n; i++) {
+        nrm[i] = nrm[i] / norm;
         vn += TP_VEL(tp)[i] * nrm[i];
     }
     if (vn < 0.0) {
         vn = -vn;
-        for (i = 0; i < dim; i++)
+        for (i = 0; i < n; i++)
             nrm[i] = -nrm[i];
     }
-    for (i = 0; i < dim; i++) {
+    for (i = 0; i < n; i++) {
         ut[i] = TP_VEL(tp)[i] - vn * nrm[i];
-        vt += ut[i] * ut[i];
+        vt += (double)ut[i] * ut[i];
     }
     vt = sqrt(vt);
 
-    code = jaximpact_wall_law(0.5 * TP_DIAM(tp), vn, vt, 0.0, &vn_out, &vt_out, &omega_out);
+    code = jaximpact_wall_law(radius, vn, vt, 0.0, &vn_out, &vt_out, &omega_out);
     if (code & JAXIMPACT_WL_INVALID)
         return PATH_ACTIVE;
-    if (code & JAXIMPACT_WL_CAPTURED)
+    if (code & JAXIMPACT_WL_CLAMPED) {
+        if (jaximpact_wl_clamped[slot]++ == 0)
+            Message("jaximpact wall law: wall %d: an impact outside the table (radius %g m, "
+                    "normal speed %g m/s, tangential speed %g m/s); %s (reported once per "
+                    "wall; jaximpact_wall_law_report gives the counts)\n",
+                    jaximpact_wl_wall_ids[slot], radius, vn, vt,
+                    JAXIMPACT_WL_ON_CLAMP == 1   ? "trapped"
+                    : JAXIMPACT_WL_ON_CLAMP == 2 ? "constant restitution"
+                                                 : "the table's edge values");
+        if (JAXIMPACT_WL_ON_CLAMP == 1) {
+            code = JAXIMPACT_WL_CAPTURED;
+        } else if (JAXIMPACT_WL_ON_CLAMP == 2) {
+            code = JAXIMPACT_WL_REBOUND;
+            vn_out = JAXIMPACT_WL_FALLBACK_EN * vn;
+            vt_out = JAXIMPACT_WL_FALLBACK_ET * vt;
+        }
+    }
+    if (code & JAXIMPACT_WL_CAPTURED) {
+#if JAXIMPACT_WL_DEPOSIT_UDM >= 0
+        if (NNULLP(t))
+            F_UDMI(f, t, JAXIMPACT_WL_DEPOSIT_UDM) += JAXIMPACT_WL_DEPOSITED(tp);
+#endif
         return PATH_END;
-    for (i = 0; i < dim; i++)
+    }
+    for (i = 0; i < n; i++) {
         TP_VEL(tp)[i] = (vt > 0.0 ? vt_out * ut[i] / vt : 0.0) - vn_out * nrm[i];
+        TP_VEL0(tp)[i] = TP_VEL(tp)[i];
+    }
     return PATH_ACTIVE;
+}
+
+DEFINE_ON_DEMAND(jaximpact_wall_law_report)
+{
+    int k;
+    for (k = 0; k < jaximpact_wl_n_walls; k++)
+        Message("jaximpact wall law: wall %d: %ld impacts outside the table, %ld particles not "
+                "inert\n",
+                jaximpact_wl_wall_ids[k], jaximpact_wl_clamped[k], jaximpact_wl_other_type[k]);
 }
