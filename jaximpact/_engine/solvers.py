@@ -40,7 +40,7 @@ SLIP_RELAXATION = 20.0
 
 # Width of the Mindlin spring's switch to slip, as a fraction of the Coulomb cap (see
 # laws.mindlin_slip_rate): the spring force reaches the cap to about this fraction.
-CAP_WIDTH = 1e-2
+CAP_WIDTH = 1e-3
 
 EXPLICIT = {"tsit5": LaneTsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8}
 IMPLICIT = {"kvaerno3": diffrax.Kvaerno3, "kvaerno5": diffrax.Kvaerno5}
