@@ -110,13 +110,25 @@ def machine():
     import scipy
 
     cpu = platform.processor() or platform.machine()
+    vectors = ""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
                 cpu = line.split(":", 1)[1].strip()
+            if line.startswith("flags"):
+                flags = set(line.split(":", 1)[1].split())
+                vectors = (
+                    "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else ("no AVX2")
+                )
+            if line == "":  # the first processor's lines are enough
                 break
     except OSError:
         pass
+    # the widest vector unit XLA uses here (rates differ by about 2x: BENCHMARKS.md, "By
+    # instruction set"), unless XLA_FLAGS limits it
+    limit = [f for f in os.environ.get("XLA_FLAGS", "").split() if "max_isa" in f]
+    if vectors:
+        cpu += f" ({vectors}" + (f", XLA limited: {limit[0]}" if limit else "") + ")"
     mem = ""
     try:
         kb = int(Path("/proc/meminfo").read_text().split()[1])
