@@ -248,6 +248,7 @@ def test_second_process_loads_the_compiled_program(micro, tmp_path):
     ]
 
 
+@pytest.mark.slow  # two fresh processes, each compiling (about 30 s on 2 cores)
 def test_cached_fit_program_runs_after_other_programs(micro, tmp_path):
     """A process that compiles another program first (a notebook's ``simulate``, then a
     fit) runs the fit's program from the cache and gives the numbers of a process that did
