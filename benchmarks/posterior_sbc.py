@@ -72,19 +72,31 @@ def _sampler_seed(seed):
     return seed + 1_000_003
 
 
-def replication(folder, design, seed, draws):
-    """One calibration replication: the truth, its ranks and the run's diagnostics."""
+def _draw(seed, n_data):
+    """Replication ``seed``'s truth (from the prior) and data noise (``n_data`` values), and
+    its random stream, which goes on to pick the draws that rank the truth."""
     rng = np.random.default_rng(seed)
     truth = {n: float(math.exp(rng.uniform(math.log(lo), math.log(hi)))) for n, (lo, hi) in
              PRIOR.items()}  # fmt: skip
+    return truth, SIGMA * rng.standard_normal(n_data), rng
+
+
+def _replication_data(folder, design, seed):
+    """Replication ``seed``'s data file in ``folder``: the model's cor_n at the truth
+    (continued below zero where it captures, as the likelihood sees it) plus the noise.
+    Returns ``(path, truth, clean values, random stream)``."""
     speed, angle = DESIGNS[design]
-    data = folder / f"{design}_{seed}.csv"
-    _write(data, speed, angle, np.full(speed.size, 0.5))
-    objective = fitting.Objective(jaximpact.table1_scene(), data, NAMES)
-    # the model's cor_n, continued below zero where it captures (as the likelihood sees it)
-    residuals = objective.residuals([truth[n] for n in NAMES])
+    truth, noise, rng = _draw(seed, speed.size)
+    residuals = _design_objective(folder, design).residuals([truth[n] for n in NAMES])
     clean = 0.5 + SIGMA * np.asarray(residuals)
-    _write(data, speed, angle, clean + SIGMA * rng.standard_normal(speed.size))
+    data = Path(folder) / f"{design}_{seed}.csv"
+    _write(data, speed, angle, clean + noise)
+    return data, truth, clean, rng
+
+
+def replication(folder, design, seed, draws):
+    """One calibration replication: the truth, its ranks and the run's diagnostics."""
+    data, truth, clean, rng = _replication_data(folder, design, seed)
     centre = {n: math.sqrt(lo * hi) for n, (lo, hi) in PRIOR.items()}
     t0 = time.perf_counter()
     post = fitting.sample_posterior(
@@ -121,16 +133,8 @@ def grid_check(design, seed, draws, points=36):
     each parameter's posterior probability below the truth, by both."""
     from fitting._bayesian.posterior import grid_reference
 
-    rng = np.random.default_rng(seed)
-    truth = {n: float(math.exp(rng.uniform(math.log(lo), math.log(hi)))) for n, (lo, hi) in
-             PRIOR.items()}  # fmt: skip
-    speed, angle = DESIGNS[design]
     with tempfile.TemporaryDirectory() as tmp:
-        data = Path(tmp) / "data.csv"
-        _write(data, speed, angle, np.full(speed.size, 0.5))
-        objective = fitting.Objective(jaximpact.table1_scene(), data, NAMES)
-        clean = 0.5 + SIGMA * np.asarray(objective.residuals([truth[n] for n in NAMES]))
-        _write(data, speed, angle, clean + SIGMA * rng.standard_normal(speed.size))
+        data, truth, _, _ = _replication_data(tmp, design, seed)
         centre = {n: math.sqrt(lo * hi) for n, (lo, hi) in PRIOR.items()}
         fit = fitting.fit(jaximpact.table1_scene(), data, NAMES, initial=centre, starts=1,
                           progress=False)  # fmt: skip
@@ -187,13 +191,9 @@ def exact_check(design, seeds, bank, sbc_rows):
     L, M = bank
     with tempfile.TemporaryDirectory() as tmp:
         objective = _design_objective(tmp, design)
-        truths, noise = [], []
-        for seed in seeds:
-            rng = np.random.default_rng(seed)
-            truths.append([math.exp(rng.uniform(math.log(lo), math.log(hi)))
-                           for lo, hi in PRIOR.values()])  # fmt: skip
-            noise.append(SIGMA * rng.standard_normal(M.shape[1]))
-        T = np.array(truths)
+        draws = [_draw(seed, M.shape[1]) for seed in seeds]
+        T = np.array([[truth[n] for n in NAMES] for truth, _, _ in draws])
+        noise = [e for _, e, _ in draws]
         clean = 0.5 + SIGMA * np.asarray(jax.jit(jax.vmap(objective.residuals))(T))
     Y = clean + np.array(noise)
     exact, ess, smc = [], [], []
