@@ -49,7 +49,7 @@ from .._least_squares.objective import FitError, Objective, check_names
 from .._least_squares.transforms import dphys_du, to_physical, to_unbounded
 from . import diagnostics
 from .priors import Prior, priors_for
-from .smc import Reference, SMCRun, run_smc
+from .smc import IMPORTANCE_KHAT, IMPORTANCE_MAX_WEIGHT, Reference, SMCRun, run_smc
 from .space import NOISE_FACTOR_RANGE, SamplingSpace
 
 __all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
@@ -1206,6 +1206,7 @@ def _merge_runs(runs: list[SMCRun]) -> SMCRun:
         problems=[p for r in runs for p in r.problems],
         from_fallback=runs[0].from_fallback,
         final_ess=cat("final_ess"),
+        importance_only=cat("importance_only"),
     )
 
 
@@ -1391,10 +1392,24 @@ def _sample_smc(
         else "from a t on the least-squares fit mixed with the prior (its importance weights "
         "showed that it covers the posterior)"
     )
+    importance = int(np.sum(run.importance_only))
+    steps = f"{int(np.max(run.stages))} tempering step(s), {int(np.median(run.moves))} moves per "
+    steps += "population (median)"
+    if importance:
+        steps += (
+            "; "
+            + (
+                "every population"
+                if importance == run.importance_only.size
+                else f"{importance} of {run.importance_only.size} populations"
+            )
+            + f" ended as an importance sample at b = 1 (weights with Pareto k <= "
+            f"{IMPORTANCE_KHAT}, an ESS of at least half its particles and no draw worth more "
+            f"than {IMPORTANCE_MAX_WEIGHT:g}; resampled: the ESS reported is the weights')"
+        )
     result.reason = (
         f"SMC ({'the default' if sampler == 'auto' else 'as asked'}; values only, no Gaussian "
         f"shape assumed): {run.draws.shape[0]} independent populations of "
-        f"{run.draws.shape[1]} particles, {start}; {int(np.max(run.stages))} tempering "
-        f"step(s), {int(np.median(run.moves))} moves per population (median)"
+        f"{run.draws.shape[1]} particles, {start}; {steps}"
     )
     return result
