@@ -126,7 +126,9 @@ def write_data(path, scene, names, speed, angle, rng):
     return placeholder, int(np.sum(status == 1))
 
 
-def run_case(name, spec, folder, truth_scene):
+def run_case(name, spec, folder, truth_scene, recorded=None, samplers=("auto", "independence")):
+    """One case; ``recorded``: a row of an earlier run whose grid (the same data: its noise
+    draw is seeded) is reused instead of computed again."""
     speed, angle, names, priors, grid_options = spec
     rng = np.random.default_rng(7)
     data, captured = write_data(folder / f"{name}.csv", truth_scene, names, speed, angle, rng)
@@ -136,7 +138,7 @@ def run_case(name, spec, folder, truth_scene):
                       progress=False)  # fmt: skip
     t_fit = time.perf_counter() - t0
     posts = {}
-    for sampler in ("auto", "independence"):
+    for sampler in samplers:
         t0 = time.perf_counter()
         try:
             post = fitting.sample_posterior(scene, data, names, priors=priors, fit_result=fit,
@@ -145,7 +147,7 @@ def run_case(name, spec, folder, truth_scene):
         except fitting.FitError as error:
             posts[sampler] = (str(error), 0.0)
     grids = []
-    for points in grid_options["points"]:
+    for points in () if recorded else grid_options["points"]:
         t0 = time.perf_counter()
         if grid_options["axes"] == "sliced":  # 3 parameters: slices x points^2
             draws = posts["auto"][0].draws.reshape(-1, len(names))
@@ -153,8 +155,6 @@ def run_case(name, spec, folder, truth_scene):
         else:
             g = grid_reference(fit, priors, points=points, axes=grid_options["axes"])
         grids.append((points, g, time.perf_counter() - t0))
-    grid = grids[-1][1]
-    grid_self = compare(grids[0][1], grid, names)["worst"]
     out = {
         "case": name,
         "params": list(names),
@@ -162,12 +162,20 @@ def run_case(name, spec, folder, truth_scene):
         "captured": captured,
         "fit_status": fit.status,
         "fit_s": t_fit,
-        "grid": {n: grid[n] for n in names},
-        "grid_points": [p for p, _, _ in grids],
-        "grid_s": [t for _, _, t in grids],
-        "grid_face_mass": grid["_face_mass"],
-        "grid_self_error": grid_self,
     }
+    if recorded:
+        keys = ("grid", "grid_points", "grid_s", "grid_face_mass", "grid_self_error")
+        out.update({k: recorded[k] for k in keys}, grid_reused=True)
+        grid = recorded["grid"]
+    else:
+        grid = grids[-1][1]
+        out.update(
+            grid={n: grid[n] for n in names},
+            grid_points=[p for p, _, _ in grids],
+            grid_s=[t for _, _, t in grids],
+            grid_face_mass=grid["_face_mass"],
+            grid_self_error=compare(grids[0][1], grid, names)["worst"],
+        )
     for sampler, (post, wall) in posts.items():
         if isinstance(post, str):
             out[sampler] = {"error": post}
@@ -267,6 +275,8 @@ def table(rows):
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         for key in ("auto", "independence"):
+            if key not in r:
+                continue
             s = r[key]
             if "error" in s:
                 print(f"| {r['case']} | {len(r['params'])} | {key} | refused: {s['error']} |")
@@ -285,6 +295,11 @@ def main(argv=None):
     ap.add_argument("--cases", help="comma list (default: all)")
     ap.add_argument("--json", help="write the numbers here")
     ap.add_argument("--table", help="print the table of a JSON written before")
+    ap.add_argument(
+        "--grids", help="a JSON written before: reuse its grids (same cases, same data) and "
+        "run the samplers only",
+    )  # fmt: skip
+    ap.add_argument("--samplers", default="auto,independence", help="comma list")
     args = ap.parse_args(argv)
     if args.table:
         table(json.loads(Path(args.table).read_text()))
@@ -300,8 +315,15 @@ def main(argv=None):
         v_c = capture_speed(truth_scene)
         print(f"capture speed at the truth: {v_c:.4f} m/s", flush=True)
         specs = cases(v_c)
+        recorded = {}
+        if args.grids:
+            recorded = {r["case"]: r for r in json.loads(Path(args.grids).read_text())}
         for name in args.cases.split(",") if args.cases else specs:
-            row = run_case(name, specs[name], folder, truth_scene)
+            row = run_case(name, specs[name], folder, truth_scene, recorded.get(name),
+                           tuple(args.samplers.split(",")))  # fmt: skip
+            for key in ("auto", "independence"):  # samplers not run: their recorded rows
+                if key not in row and key in recorded.get(name, {}):
+                    row[key] = dict(recorded[name][key], reused=True)
             rows.append(row)
             print(json.dumps(row), flush=True)
             if args.json:

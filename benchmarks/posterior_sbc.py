@@ -22,6 +22,7 @@ compares SMC with the exact posterior on a grid: each parameter's probability be
 import argparse
 import json
 import math
+import re
 import sys
 import tempfile
 import time
@@ -123,8 +124,19 @@ def replication(folder, design, seed, draws):
         "rhat": max(post.summary[n]["rhat"] for n in NAMES),
         "ess": min(min(post.summary[n]["ess"], post.summary[n]["ess_tail"]) for n in NAMES),
         "evaluations": post.evaluations,
+        # populations that ended as an importance sample (the rest moved until decorrelated)
+        "importance_populations": _importance_populations(post),
         "wall_s": wall,
     }
+
+
+def _importance_populations(post) -> int:
+    found = re.search(
+        r"(every population|(\d+) of \d+ populations) ended as an importance", post.reason
+    )
+    if not found:
+        return 0
+    return post.chains if found.group(2) is None else int(found.group(2))
 
 
 def grid_check(design, seed, draws, points=36):
@@ -301,6 +313,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--design", choices=list(DESIGNS))
     ap.add_argument("--replications", type=int, default=200)
+    ap.add_argument(
+        "--first-seed", type=int, default=1,
+        help="seeds FIRST..FIRST+replications-1 (fresh data for a new sampler: 1)",
+    )  # fmt: skip
     ap.add_argument("--draws", type=int, default=500, help="particles per population (500)")
     ap.add_argument("--out", help="JSON lines, appended")
     ap.add_argument("--report", nargs="+", help="JSON lines files: print the table, plot")
@@ -343,7 +359,8 @@ def main(argv=None):
     out = Path(args.out)
     done = len(out.read_text().splitlines()) if out.exists() else 0
     with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(done + 1, args.replications + 1):
+        first = args.first_seed
+        for seed in range(first + done, first + args.replications):
             rep = replication(Path(tmp), args.design, seed, args.draws)
             with out.open("a") as f:
                 f.write(json.dumps(rep) + "\n")
