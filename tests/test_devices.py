@@ -125,6 +125,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow  # a process of its own compiling five programs (60 s): CI's second step
 def test_loop_kernels_keep_results_batch_exact_and_accurate():
     """With ``use_all_cpu_cores()`` (as the CLI runs: two devices, step loops compiled as
     single kernels, small chunks per device), an impact's values are bitwise the same alone,
