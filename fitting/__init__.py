@@ -12,6 +12,10 @@ Typical use::
 or, from the shell, ``jaximpact fit [SCENE.toml] DATA.csv --params C_A C_H f0``.
 """
 
+from ._bayesian.loo import LOO as LOO
+from ._bayesian.loo import compare_models as compare_models
+from ._bayesian.loo import loo as loo
+from ._bayesian.loo import pointwise_log_likelihood as pointwise_log_likelihood
 from ._bayesian.posterior import PosteriorResult as PosteriorResult
 from ._bayesian.posterior import posterior_predictive as posterior_predictive
 from ._bayesian.posterior import sample_posterior as sample_posterior

@@ -153,6 +153,8 @@ class PosteriorResult:
     log_density: np.ndarray
     fit: FitResult | None = None
     program: Callable | None = field(default=None, repr=False)
+    #: The objective the sampler evaluated (the fit's, at the sampling tolerance).
+    objective: Objective | None = field(default=None, repr=False)
     noise_groups: np.ndarray | None = field(default=None, repr=False)
     sampler: str = "hmc"
     khat: float = math.nan
@@ -848,6 +850,7 @@ def sample_posterior(
     )
     result.fit = fit_result
     result.program = _model_values(sampled, names)
+    result.objective = sampled
     result.noise_groups = groups
     result.timings = {
         "fit": t_fit,

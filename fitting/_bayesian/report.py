@@ -113,8 +113,9 @@ def posterior_summary(result: PosteriorResult) -> str:
     return "\n".join(lines)
 
 
-def import_arviz():
-    """arviz, imported quietly (it warns about its own coming refactor on import).
+def import_arviz(what: str = "--draws"):
+    """arviz, imported quietly (it warns about its own coming refactor on import); ``what``
+    needs it (named in the error).
 
     Raises:
         FitError: arviz is not installed (``pip install "jaximpact[posterior]"``).
@@ -126,7 +127,7 @@ def import_arviz():
             warnings.simplefilter("ignore", FutureWarning)
             import arviz
     except ImportError:
-        raise FitError('--draws needs arviz: pip install "jaximpact[posterior]"') from None
+        raise FitError(f'{what} needs arviz: pip install "jaximpact[posterior]"') from None
     return arviz
 
 
