@@ -292,6 +292,12 @@ def report(paths, figure):
         med = float(np.median([r["wall_s"] for r in reps]))
         print(f"| {design} | {len(reps)} | {conv} | {cap} replications | {med:.1f} | "
               + " | ".join(f"{ps[n]:.3f}" for n in NAMES) + " |")  # fmt: skip
+        counted = [r for r in reps if "importance_populations" in r]
+        if counted:
+            some = sum(r["importance_populations"] > 0 for r in counted)
+            ends = sum(r["importance_populations"] for r in counted)
+            print(f"  {design}: {some} of {len(counted)} replications had populations that "
+                  f"ended as importance samples ({ends} populations in all)")  # fmt: skip
         below = [r for r in reps if "p_below" in r]
         if below:  # the share of all draws below the truth: uniform on (0, 1) too
             line = []
