@@ -80,7 +80,7 @@ IMPORTANCE_KHAT = 0.5
 #: One heavy draw signals a proposal tail lighter than the posterior's, which a Pareto k
 #: estimated from 1,000 draws can miss: on a curved ridge (tests/test_posterior.py) one draw
 #: carried 9.5 particles at k = 0.31 and put the sd of f0 72 % off; on the benchmark's
-#: well-covered cases the heaviest draw carried 1.7-3.4.
+#: well-covered cases the heaviest draw carried 1.7-3.7.
 IMPORTANCE_MAX_WEIGHT = 4.0
 #: Random-walk steps are scaled toward this acceptance rate.
 RW_ACCEPT = 0.3
