@@ -150,7 +150,7 @@ def simulate_normal_impact(speed, R, E, w, m, rtol=1e-12) -> JKRImpact:
     if not (speed > 0 and R > 0 and E > 0 and w > 0 and m > 0):
         raise ValueError("speed, R, E, w and m must be > 0")
     _, delta_c, _ = snap_off(R, E, w)
-    lam, mu = _scales(R, E, w)
+    _, mu = _scales(R, E, w)
     # Time scale of the contact: its overlap scale (Hertz's largest overlap at this speed, or
     # the adhesion's own) over the speed.
     hertz = (15.0 * m * speed * speed / (16.0 * E * math.sqrt(R))) ** 0.4
@@ -170,23 +170,15 @@ def simulate_normal_impact(speed, R, E, w, m, rtol=1e-12) -> JKRImpact:
 
     turned.terminal, turned.direction = True, 1.0
 
-    t_max, t, y = 1e4 * T, 0.0, np.array([0.0, float(speed)])
-    max_overlap = 0.0
-    while t < t_max:
-        sol = solve_ivp(
-            rhs, (t, t_max), y, method="DOP853", rtol=rtol,
-            atol=[1e-3 * rtol * max(hertz, mu), 1e-3 * rtol * speed],
-            events=(snapped, turned), max_step=0.05 * T,
-        )  # fmt: skip
-        max_overlap = max(max_overlap, float(np.max(sol.y[0])))
-        if sol.t_events[0].size:
-            v = float(sol.y_events[0][0][1])
-            return JKRImpact("rebound", -v, float(sol.t_events[0][0]), max_overlap)
-        if sol.t_events[1].size:
-            t_turn = float(sol.t_events[1][0])
-            if t_turn > 0 and float(sol.y_events[1][0][0]) < max_overlap:
-                return JKRImpact("captured", 0.0, t_turn, max_overlap)
-        if sol.status != 0 or sol.t[-1] <= t:
-            break
-        t, y = float(sol.t[-1]), sol.y[:, -1]
+    sol = solve_ivp(
+        rhs, (0.0, 1e4 * T), [0.0, float(speed)], method="DOP853", rtol=rtol,
+        atol=[1e-3 * rtol * max(hertz, mu), 1e-3 * rtol * speed],
+        events=(snapped, turned), max_step=0.05 * T,
+    )  # fmt: skip
+    max_overlap = float(np.max(sol.y[0]))
+    if sol.t_events[0].size:
+        v_out = -float(sol.y_events[0][0][1])
+        return JKRImpact("rebound", v_out, float(sol.t_events[0][0]), max_overlap)
+    if sol.t_events[1].size:
+        return JKRImpact("captured", 0.0, float(sol.t_events[1][0]), max_overlap)
     raise RuntimeError(f"the JKR impact did not end: {sol.message}")
