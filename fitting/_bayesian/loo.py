@@ -27,7 +27,7 @@ from jaximpact._engine.devices import engine_jit
 
 from .._least_squares.fit import FitError
 from .._least_squares.transforms import to_unbounded
-from .posterior import PosteriorResult, _model_residuals
+from .posterior import PosteriorResult, _model_residuals, noise_factors
 from .report import import_arviz
 
 __all__ = ["LOO", "compare_models", "loo", "pointwise_log_likelihood"]
@@ -50,11 +50,8 @@ def pointwise_log_likelihood(result: PosteriorResult, max_draws: int = 1000) -> 
     theta = result.draws[:, keep].reshape(-1, p)
     U = np.stack([to_unbounded(names, t) for t in theta])
     residuals = np.asarray(engine_jit(jax.vmap(_model_residuals(objective, names)))(U))
-    groups = np.asarray(result.noise_groups)
     noise = result.noise_draws[:, keep].reshape(len(theta), -1)
-    factor = np.ones(residuals.shape)
-    if noise.size:
-        factor = np.where(groups >= 0, noise[:, np.maximum(groups, 0)], 1.0)
+    factor = noise_factors(noise, result.noise_groups)
     scale = np.asarray(objective.scale, float) * factor  # in the observations' units
     x = residuals / factor
     if result.likelihood == "gaussian":

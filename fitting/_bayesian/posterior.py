@@ -899,6 +899,15 @@ def _model_values(objective: Objective, names):
     return engine_jit(jax.vmap(_model_residuals(objective, names, zero, one)))
 
 
+def noise_factors(noise: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """``(draws, observations)`` sigma factor of each observation at each draw: its group's
+    sampled factor (``noise``: ``(draws, groups)``), 1 for rows with a sigma (group -1)."""
+    groups = np.asarray(groups)
+    if not noise.size:
+        return np.ones((noise.shape[0], groups.size))
+    return np.where(groups >= 0, noise[:, np.maximum(groups, 0)], 1.0)
+
+
 def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
     """Model values at the observations for ``n`` draws spread over the chains, and the same
     with the likelihood's noise added: ``(model (n, n_data), predicted (n, n_data))``."""
@@ -912,9 +921,7 @@ def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
     model = np.asarray(result.program(jnp.asarray(U)))
     objective = result.fit.objective
     groups = result.noise_groups
-    factor = np.where(
-        groups >= 0, noise[pick][:, np.maximum(groups, 0)] if noise.size else 1.0, 1.0
-    )
+    factor = noise_factors(noise[pick], groups)
     rng = np.random.default_rng(seed)
     if result.likelihood == "gaussian":
         e = rng.standard_normal(model.shape)
