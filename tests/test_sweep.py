@@ -332,6 +332,24 @@ def test_rerunning_a_finished_sweep_does_nothing(impacts, reference, tmp_path):
     assert after == before
 
 
+def test_continuing_deletes_the_temporaries_a_killed_run_left(impacts, reference, tmp_path):
+    # A run killed while a writer thread was writing chunk 2 leaves its temporary behind.
+    out = tmp_path / "copy"
+    shutil.copytree(reference[0], out)
+    manifest = out / "_manifest-00000.json"
+    content = json.loads(manifest.read_text())
+    content["completed"] = [0, 1]
+    manifest.write_text(json.dumps(content))
+    (out / "part-000002.parquet").unlink()
+    stale = [out / ".part-000002.parquet.0123456789ab.tmp", out / "._manifest-00000.json.ab.tmp"]
+    for path in stale:
+        path.write_bytes(b"half written")
+    summary = run_sweep(read_impacts_file(impacts), out, chunk_size=CHUNK, progress=False)
+    assert summary.chunks_run == 1 and summary.complete
+    assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
+    assert_same(read_sweep_columns(out), reference[1])
+
+
 # ---------------------------------------------------------------------------------------------
 # (3) Several devices, several processes
 

@@ -27,6 +27,7 @@ from ._sources import GridSource, SweepError, TableSource
 from ._store import (
     _MANIFEST,
     _PART,
+    _TEMP,
     FORMAT,
     _atomic_write_table,
     _clear,
@@ -188,6 +189,7 @@ def run_sweep(
         manifests = {}
     else:
         manifests = _continued_manifests(directory, settings, digest, index, count)
+        _clear_own_temporaries(directory, mine, index)
     result_columns = chosen or _result_columns(manifests)
     done = {int(c) for _, m in manifests.values() for c in m["completed"]}
     own_manifest = manifests[index][1] if index in manifests else {"completed": []}
@@ -298,6 +300,18 @@ def _clear_for_restart(directory: Path, mine, index: int, count: int, n_chunks: 
         if manifest:
             return int(manifest.group(1)) < count
         return True  # others' temporaries may be in flight
+
+    _clear(directory, keep)
+
+
+def _clear_own_temporaries(directory: Path, mine, index: int) -> None:
+    """Delete the temporaries a killed run of this process left (a part file or manifest it
+    was writing when it died). Only this process writes those names, so none is in flight."""
+    own = {_part_name(c) for c in mine} | {_manifest_name(index), _legacy_manifest_name(index)}
+
+    def keep(name: str) -> bool:
+        temporary = _TEMP.match(name)
+        return not (temporary and name[1:].rsplit(".", 2)[0] in own)
 
     _clear(directory, keep)
 
