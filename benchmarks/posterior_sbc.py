@@ -250,6 +250,101 @@ def exact_check(design, seeds, bank, sbc_rows):
             print(f"| {lo}-{hi} | {int(sel.sum())} | {means} |")
 
 
+def _log_t(X, mu, chol, nu):
+    """Log density of a multivariate t (``nu`` degrees of freedom, scale ``chol chol^T``)."""
+    d = X.shape[1]
+    z = np.linalg.solve(chol, (X - mu).T).T
+    q = np.sum(z * z, 1)
+    return (
+        math.lgamma((nu + d) / 2) - math.lgamma(nu / 2) - 0.5 * d * math.log(nu * math.pi)
+        - np.sum(np.log(np.diag(chol))) - 0.5 * (nu + d) * np.log1p(q / nu)
+    )  # fmt: skip
+
+
+def _weighted_moments(L, log_w):
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    mu = w @ L
+    cov = (L - mu).T @ ((L - mu) * w[:, None])
+    return mu, cov, 1.0 / np.sum(w * w)
+
+
+def sharp_exact_check(design, seeds, bank, sbc_rows, size=2000, rounds=3, nu=4.0):
+    """The exact posterior of each replication by adaptive importance sampling in ``ln p``:
+    a t proposal (``nu`` degrees of freedom, twice the scale of the previous round's weighted
+    spread) placed first on the prior bank's weighted points, then on each round's; the last
+    round's ``size`` fresh model evaluations give P(parameter < truth) with an importance ESS
+    in the thousands where the prior bank's was a handful. Weights: prior (uniform in ``ln p``
+    over the box) times likelihood over the proposal; no part of the sampler is used. The model
+    runs at the sampler's tolerance (rtol 1e-7: within 0.006 sigma of the data's rtol 1e-10 at
+    2,000 prior draws; 2.7x fewer steps)."""
+    from fitting._bayesian.posterior import SAMPLING_RTOL, _at_tolerance
+
+    L_bank, M_bank = bank
+    box = np.log(np.array(list(PRIOR.values())))
+    rng = np.random.default_rng(2024)
+    with tempfile.TemporaryDirectory() as tmp:
+        objective = _design_objective(tmp, design)
+        draws = [_draw(seed, M_bank.shape[1]) for seed in seeds]
+        T = np.array([[truth[n] for n in NAMES] for truth, _, _ in draws])
+        clean = 0.5 + SIGMA * np.asarray(jax.jit(jax.vmap(objective.residuals))(T))
+        Y = clean + np.array([e for _, e, _ in draws])
+        model = jax.jit(jax.vmap(_at_tolerance(objective, SAMPLING_RTOL).residuals))
+
+        def values(L):  # model values at ln p (n, 3), in blocks of the compiled size
+            out = []
+            for i in range(0, len(L), size):
+                block = L[i : i + size]
+                pad = np.concatenate([block, np.repeat(block[-1:], size - len(block), 0)])
+                out.append(0.5 + SIGMA * np.asarray(model(np.exp(pad)))[: len(block)])
+            return np.concatenate(out)
+
+        rows = []
+        for k, seed in enumerate(seeds):
+            log_w = -0.5 * np.sum(((M_bank - Y[k]) / SIGMA) ** 2, axis=1)
+            mu, cov, ess = _weighted_moments(L_bank, log_w)
+            # a floor under the bank's spread, which a handful of points may leave singular
+            floor = np.diag(((box[:, 1] - box[:, 0]) / 200.0) ** 2)
+            for r in range(rounds):
+                chol = np.linalg.cholesky(4.0 * cov + (floor if r == 0 else 0.0))
+                g = rng.standard_normal((size, len(NAMES)))
+                L = mu + (g / np.sqrt(rng.chisquare(nu, size) / nu)[:, None]) @ chol.T
+                inside = np.all((L > box[:, 0]) & (L < box[:, 1]), axis=1)
+                log_w = np.full(size, -np.inf)
+                M = values(L[inside])
+                log_w[inside] = -0.5 * np.sum(((M - Y[k]) / SIGMA) ** 2, axis=1) - _log_t(
+                    L[inside], mu, chol, nu
+                )
+                mu, cov, ess = _weighted_moments(L, log_w)
+            w = np.exp(log_w - log_w.max())
+            p = [float(w[L[:, i] < math.log(T[k, i])].sum() / w.sum()) for i in range(len(NAMES))]
+            row = sbc_rows.get(seed)
+            smc = (
+                [np.nan] * len(NAMES) if row is None
+                else [row["p_below"][n] if "p_below" in row else row["ranks"][n] / RANKS
+                      for n in NAMES]
+            )  # fmt: skip
+            rows.append((seed, ess, p, smc))
+            print(json.dumps({"seed": seed, "ess": round(ess, 1), "exact": p, "smc": smc}),
+                  flush=True)  # fmt: skip
+    ess = np.array([r[1] for r in rows])
+    exact = np.array([r[2] for r in rows])
+    smc = np.array([r[3] for r in rows])
+    have = np.all(np.isfinite(smc), axis=1)
+    half = math.sqrt(1 / 12 / len(seeds))
+    print(f"{design}, replications {seeds[0]}-{seeds[-1]}: adaptive importance sampling, "
+          f"{rounds} x {size} evaluations each, final ESS median {np.median(ess):.0f} "
+          f"(min {ess.min():.0f})")  # fmt: skip
+    print("| parameter | exact: mean P(< truth) | SMC: mean | mean abs(SMC - exact) | corr |")
+    print("|---|---|---|---|---|")
+    for i, n in enumerate(NAMES):
+        e, m = exact[have, i], smc[have, i]
+        print(f"| {n} | {exact[:, i].mean():.3f} (0.5 +- {half:.3f}) | "
+              + (f"{m.mean():.3f} | {np.abs(m - e).mean():.3f} | {np.corrcoef(e, m)[0, 1]:.3f} |"
+                 if have.any() else "- | - | - |"))  # fmt: skip
+    return rows
+
+
 def chi_square(ranks):
     """p-value of the chi-square test of uniform ranks 0..RANKS over BINS equal bins."""
     from scipy.stats import chi2
@@ -338,10 +433,14 @@ def main(argv=None):
         help="replications FIRST..LAST: the exact posterior by importance sampling of a prior "
         "bank against SMC's (rows read from --out)",
     )  # fmt: skip
+    ap.add_argument(
+        "--sharp-exact", type=int, nargs=2, metavar=("FIRST", "LAST"),
+        help="as --exact, refined by adaptive importance sampling (3 x 2,000 evaluations each)",
+    )  # fmt: skip
     ap.add_argument("--bank", help="the prior bank's cache (.npz; made if missing)")
     ap.add_argument("--bank-size", type=int, default=400_000)
     args = ap.parse_args(argv)
-    if args.exact:
+    if args.exact or args.sharp_exact:
         rows = {}
         if args.out and Path(args.out).exists():
             for line in Path(args.out).read_text().splitlines():
@@ -349,7 +448,11 @@ def main(argv=None):
                 rows[row["seed"]] = row
         bank_path = args.bank or Path(tempfile.gettempdir()) / f"sbc_bank_{args.design}.npz"
         bank = prior_bank(args.design, args.bank_size, bank_path)
-        exact_check(args.design, list(range(args.exact[0], args.exact[1] + 1)), bank, rows)
+        if args.sharp_exact:
+            first, last = args.sharp_exact
+            sharp_exact_check(args.design, list(range(first, last + 1)), bank, rows)
+        else:
+            exact_check(args.design, list(range(args.exact[0], args.exact[1] + 1)), bank, rows)
         return 0
     if args.report:
         report(args.report, args.figure)

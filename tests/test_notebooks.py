@@ -45,12 +45,20 @@ def test_stored_notebook_is_clean(path):
     assert path.stat().st_size < 1_500_000
 
 
+@pytest.fixture(scope="module")
+def shared_cache(tmp_path_factory):
+    """One compilation cache for the notebooks' kernels, as a user's sessions share one: a
+    program one notebook compiled (the Table 1 scene's, a fit's) loads in the next."""
+    return tmp_path_factory.mktemp("notebook-jit-cache")
+
+
 @pytest.mark.slow  # about a minute each: CI's second step
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=NAMES)
-def test_notebook_executes(path, monkeypatch):
+def test_notebook_executes(path, monkeypatch, shared_cache):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     monkeypatch.setenv("JAXIMPACT_NOTEBOOK_SMALL", "1")
+    monkeypatch.setenv("JAXIMPACT_CACHE_DIR", str(shared_cache))
     monkeypatch.setenv("MPLBACKEND", "Agg")
     nb = nbformat.read(path, as_version=4)
     client = nbclient.NotebookClient(
