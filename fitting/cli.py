@@ -125,6 +125,18 @@ def _add_posterior_options(p) -> None:
     g.add_argument(
         "--predictive", metavar="FILE.png", help="data against the posterior predictive band"
     )
+    g.add_argument(
+        "--compare",
+        nargs="+",
+        default=[],
+        metavar="SCENE[=PARAMS]",
+        help="also fit and sample each of these scenes (embedded name or TOML file) on the same "
+        "data with the same options, then compare all the models by PSIS-LOO (ArviZ); "
+        "=PARAMS: that scene's own fitted parameters as a comma list (default: --params)",
+    )
+    g.add_argument(
+        "--compare-plot", metavar="FILE.png", help="each compared model's band against the data"
+    )
     g = p.add_argument_group("profile likelihood")
     g.add_argument(
         "--profile",
@@ -250,9 +262,11 @@ def cmd_fit(args) -> int:
         (args.draws, "draws file"),
         (args.corner, "corner plot"),
         (args.predictive, "predictive plot"),
+        (args.compare_plot, "comparison plot"),
     )
     _check_fit_options(args, names, posterior_outputs)
     scene = jaximpact.load_scene(scene_path)
+    alternatives = _compared_models(args, names, scene_path)
     if args.posterior:  # a bad prior in the scene's [priors] must not cost the fit either
         from ._bayesian.priors import priors_for
 
@@ -293,6 +307,10 @@ def cmd_fit(args) -> int:
                 "the posterior describes it",
                 file=sys.stderr,
             )
+        if alternatives:
+            label = scene_path or "table1"
+            failed += _fit_compare(args, {label: post}, alternatives, data_path, document,
+                                   outputs, drawn)  # fmt: skip
     if (args.posterior and not sampled) or (args.profile and not result.converged):
         print(
             "the least-squares fit did not converge: no "
@@ -356,12 +374,17 @@ def _check_fit_options(args, names, posterior_outputs) -> None:
 
     if not args.posterior:
         for option, (path, _) in zip(
-            ("--draws", "--corner", "--predictive"), posterior_outputs, strict=True
-        ):
+            ("--draws", "--corner", "--predictive", "--compare-plot"), posterior_outputs,
+            strict=True,
+        ):  # fmt: skip
             if path:
                 raise FitError(f"{option} needs --posterior")
         if args.prior:
             raise FitError("--prior needs --posterior")
+        if args.compare:
+            raise FitError("--compare needs --posterior (models are compared by their posteriors)")
+    if args.compare_plot and not args.compare:
+        raise FitError("--compare-plot needs --compare")
     for label, value, least in (
         ("--chains", args.chains, 1),
         ("--samples", args.samples, 4),
@@ -376,10 +399,10 @@ def _check_fit_options(args, names, posterior_outputs) -> None:
         raise FitError(f"--profile {args.profile}: not among the fitted --params {list(names)}")
     if args.profile_plot and args.profile is None:
         raise FitError("--profile-plot needs --profile NAME")
-    if args.draws:
+    if args.draws or args.compare:
         from ._bayesian.report import import_arviz
 
-        import_arviz()
+        import_arviz("--draws" if args.draws else "--compare")
 
 
 def _check_fit_outputs(args, posterior_outputs) -> None:
@@ -393,6 +416,7 @@ def _check_fit_outputs(args, posterior_outputs) -> None:
         ("--profile-plot", args.profile_plot),
         ("--corner", args.corner),
         ("--predictive", args.predictive),
+        ("--compare-plot", args.compare_plot),
     ):
         if path:
             check_plot_path(path, option)
@@ -454,6 +478,91 @@ def _fit_posterior(args, scene, names, priors, result, document, outputs, drawn)
         ),
     ]
     return post
+
+
+def _compared_models(args, names, scene_path) -> dict:
+    """``--compare``: ``{label: (scene, fitted names, priors)}`` of each other model, every
+    scene read and every name checked before any computing (bad input: ``ValueError``)."""
+    import jaximpact
+
+    from ._bayesian.priors import priors_for
+    from ._least_squares.objective import FITTABLE, FitError, check_names
+
+    out = {}
+    for item in args.compare:
+        label, sep, own = item.partition("=")
+        label = label.strip()
+        if not label:
+            raise FitError(f"--compare expects SCENE or SCENE=NAME[,NAME...], got {item!r}")
+        if label in out or label == (scene_path or "table1"):
+            raise FitError(f"--compare {label}: the same model twice")
+        try:
+            model_names = check_names(split_names("--compare", [own], FITTABLE)) if sep else names
+        except FitError as err:
+            raise FitError(f"--compare {item}: {err}") from None
+        scene = jaximpact.load_scene(label)
+        # --prior applies to each model that fits that parameter
+        priors = _parse_priors(
+            [p for p in args.prior if p.partition("=")[0].strip() in model_names], model_names
+        )
+        priors_for(model_names, priors, scene.priors)
+        out[label] = (scene, model_names, priors)
+    return out
+
+
+def _fit_compare(args, posteriors, alternatives, data_path, document, outputs, drawn) -> list:
+    """``--compare``: fit and sample each other model, compare all by PSIS-LOO (printed and
+    in ``document["comparison"]``); returns the reasons for exit status 3 (a model whose fit
+    or posterior did not converge; the comparison leaves out a model it could not sample)."""
+    from ._bayesian.loo import compare_models
+    from ._bayesian.posterior import sample_posterior
+    from ._bayesian.report import (
+        add_to_result_dict,
+        comparison_summary,
+        plot_comparison,
+        posterior_summary,
+    )
+    from ._least_squares.fit import fit
+    from ._least_squares.report import result_dict, summary
+
+    failed, models = [], {}
+    init = _parse_init(args.init)
+    for label, (scene, model_names, priors) in alternatives.items():
+        print(f"\n== model {label}: {', '.join(model_names)} ==")
+        result = fit(
+            scene, data_path, model_names,
+            initial={k: v for k, v in init.items() if k in model_names}, solver=args.solver,
+            starts=args.starts, spread=args.spread, seed=args.seed, max_steps=args.max_steps,
+            progress=not args.no_progress,
+        )  # fmt: skip
+        print(summary(result))
+        entry = result_dict(result)
+        models[label] = entry
+        if not (result.converged or result.status == "undetermined"):
+            failed.append(f"{label}: fit {result.message} (left out of the comparison)")
+            continue
+        post = sample_posterior(
+            scene, result.objective.observations, model_names, priors=priors,
+            likelihood=args.likelihood, nu=args.nu, chains=args.chains, draws=args.samples,
+            warmup=args.warmup, seed=args.seed, fit_result=result, sampler=args.sampler,
+            progress=not args.no_progress,
+        )  # fmt: skip
+        print(posterior_summary(post))
+        add_to_result_dict(entry, post)
+        if not post.converged:
+            failed.append(f"{label}: posterior {post.message}")
+        posteriors[label] = post
+    rows = compare_models(posteriors) if len(posteriors) > 1 else []
+    if rows:
+        print("\n" + comparison_summary(rows))
+    else:
+        print("\nno comparison: fewer than two models were sampled", file=sys.stderr)
+    document["comparison"] = {"models": models, "loo": rows}
+    outputs.append(
+        (args.compare_plot,
+         drawn("the compared models", lambda path: plot_comparison(path, posteriors)))
+    )  # fmt: skip
+    return failed
 
 
 def _write_outputs(outputs) -> None:

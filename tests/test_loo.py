@@ -68,3 +68,40 @@ def test_compare_models_puts_the_generating_model_first(two_models):
     assert wrong["problems"]  # a misfit's influential points: Pareto k above 0.7, said
     with pytest.raises(fitting.FitError, match="at least two"):
         fitting.compare_models({"one": posts["true C_H"]})
+
+
+def _scene_file(path, C_H):
+    """The Table 1 sphere as a scene file with C_A, C_H and f0 given directly."""
+    text = ji.default_scene_path().read_text()
+    text = text.replace("f0 = 325.0", f"f0 = 300.0\nC_A = 0.75\nC_H = {C_H}")
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith(("zeta_", "reference_")))
+    path.write_text(text + "\n")
+    assert ji.load_scene(path).contact.C_H == pytest.approx(C_H)
+    return path
+
+
+@pytest.mark.slow  # two fits and posteriors through the command line
+def test_cli_compare_ranks_the_generating_scene_first(two_models, tmp_path, capsys):
+    import json
+
+    from jaximpact.cli import main
+
+    truth, speed, y, _ = two_models
+    data = tmp_path / "data.csv"
+    rows = [f"{float(s)!r},0.0,cor_n,{float(v)!r},{SIGMA}" for s, v in zip(speed, y, strict=True)]
+    data.write_text("speed,angle_deg,observable,value,sigma\n" + "\n".join(rows) + "\n")
+    right, wrong = _scene_file(tmp_path / "right.toml", 0.25), _scene_file(tmp_path / "w.toml", 0.4)
+    out, plot = tmp_path / "fit.json", tmp_path / "compare.png"
+    code = main([
+        "fit", str(wrong), str(data), "--params", "C_A,f0", "--posterior", "--samples", "500",
+        "--prior", "C_A=loguniform:0.2:3", "f0=loguniform:75:1200", "--compare", str(right),
+        "--compare-plot", str(plot), "-o", str(out), "--no-progress", "--starts", "1",
+    ])  # fmt: skip
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert "model comparison by PSIS-LOO" in printed.out
+    loo_rows = json.loads(out.read_text())["comparison"]["loo"]
+    assert [r["name"] for r in loo_rows] == [str(right), str(wrong)]
+    assert loo_rows[1]["elpd_diff"] < -2 * loo_rows[1]["se_diff"]
+    assert f"{right} predicts better than {wrong}" in printed.out
+    assert plot.stat().st_size > 0

@@ -392,6 +392,12 @@ def test_cli_bad_scene_prior_exit_2_before_fitting(tmp_path, capsys):
         (["--posterior", "--samples", "2"], "--samples"),
         (["--profile", "K"], "--profile K"),
         (["--profile-plot", "p.png"], "--profile-plot needs --profile"),
+        (["--compare", "kharaz2001"], "--compare needs --posterior"),
+        (["--posterior", "--compare-plot", "c.png"], "--compare-plot needs --compare"),
+        (["--posterior", "--compare", "nosuch.toml"], "nosuch.toml"),
+        (["--posterior", "--compare", "table1"], "--compare table1: the same model twice"),
+        (["--posterior", "--compare", "kharaz2001=mu"], "mu"),
+        (["--posterior", "--compare", "kharaz2001="], "no parameters to fit"),
     ],
 )
 def test_cli_bad_posterior_options_exit_2(extra, field, tmp_path, capsys):

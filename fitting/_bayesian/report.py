@@ -306,3 +306,73 @@ def _unit(name: str) -> str:
 
     unit = RANGES[name].unit
     return "" if unit == "1" else f" {unit}"
+
+
+def comparison_summary(rows: list[dict]) -> str:
+    """The table of :func:`fitting.compare_models`'s rows (best first), with each model's
+    PSIS-LOO problems below it."""
+    lines = [
+        "model comparison by PSIS-LOO (elpd: expected log predictive density of a new "
+        "observation; higher is better)",
+        f"  {'model':28s} {'elpd_loo':>10s} {'se':>7s} {'elpd_diff':>10s} {'se_diff':>8s} "
+        f"{'p_loo':>6s} {'max k':>6s}",
+    ]
+    for r in rows:
+        lines.append(
+            f"  {r['name'][:28]:28s} {r['elpd']:10.2f} {r['se']:7.2f} {r['elpd_diff']:10.2f} "
+            f"{r['se_diff']:8.2f} {r['p_loo']:6.2f} {r['max_khat']:6.2f}"
+        )
+    lines += [f"  {r['name']}: {p}" for r in rows for p in r["problems"]]
+    best, *others = rows
+    clear = [r["name"] for r in others if r["elpd_diff"] < -2.0 * r["se_diff"]]
+    close = [r["name"] for r in others if r["name"] not in clear]
+    if clear:
+        lines.append(f"  {best['name']} predicts better than {', '.join(clear)} (more than "
+                     "2 standard errors of the difference)")  # fmt: skip
+    if close:
+        lines.append(f"  {best['name']} and {', '.join(close)}: within 2 standard errors of "
+                     "the difference (the data do not tell them apart)")  # fmt: skip
+    return "\n".join(lines)
+
+
+def plot_comparison(path, results: dict[str, PosteriorResult], n: int = 200) -> None:
+    """Data against each model's posterior: its median and 90 % band at each observed
+    impact, side by side (one panel per observable)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    first = next(iter(results.values()))
+    obs = first.fit.objective.observations
+    x_is_angle = np.unique(obs.speed).size == 1
+    x = obs.angle_deg if x_is_angle else obs.speed
+    names = [k for k in OBSERVABLES if k != "captured" and np.any(obs.observable == k)]
+    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
+    models = {label: posterior_predictive(r, n)[0] for label, r in results.items()}
+    # A small offset along x per model, so that bands at the same impact stay apart.
+    spread = 0.012 if x_is_angle else 0.02
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        sel = np.flatnonzero(obs.observable == name)
+        order = sel[np.argsort(x[sel], kind="stable")]
+        for k, (label, model) in enumerate(models.items()):
+            shift = (k - 0.5 * (len(models) - 1)) * spread
+            xs = x[order] + shift * np.ptp(x) if x_is_angle else x[order] * (1.0 + shift)
+            lo, mid, hi = np.quantile(model[:, order], [0.05, 0.5, 0.95], axis=0)
+            ax.vlines(xs, lo, hi, color=f"C{k}", lw=3, alpha=0.5)
+            ax.plot(xs, mid, "_-", color=f"C{k}", lw=1, ms=8,
+                    label=f"{Path(label).name} (median, 90 %)")  # fmt: skip
+        sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
+        ax.errorbar(x[sel], obs.value[sel], yerr=sigma if np.any(sigma) else None, fmt="o",
+                    color="k", ms=3, label="data")  # fmt: skip
+        ax.set_ylabel(observable_label(name))
+        if not x_is_angle:
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
+    axes[0, 0].legend(fontsize=7)
+    axes[0, 0].set_title("the models' posteriors against the data", fontsize=9)
+    fig.tight_layout()
+    _atomic_savefig(fig, Path(path))
+    plt.close(fig)
