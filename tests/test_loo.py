@@ -105,3 +105,20 @@ def test_cli_compare_ranks_the_generating_scene_first(two_models, tmp_path, caps
     assert loo_rows[1]["elpd_diff"] < -2 * loo_rows[1]["se_diff"]
     assert f"{right} predicts better than {wrong}" in printed.out
     assert plot.stat().st_size > 0
+
+
+def test_comparison_summary_says_which_differences_exceed_two_standard_errors():
+    from fitting._bayesian.report import comparison_summary
+
+    def row(name, elpd, diff, se_diff, problems=()):
+        return dict(name=name, elpd=elpd, se=3.0, elpd_diff=diff, se_diff=se_diff, p_loo=2.0,
+                    max_khat=0.3, problems=list(problems))  # fmt: skip
+
+    text = comparison_summary([
+        row("a.toml", 40.0, 0.0, 0.0), row("b.toml", 30.0, -10.0, 4.0),
+        row("c.toml", 38.0, -2.0, 1.5, ["1 observation(s) with Pareto k above 0.7 (rows 3)"]),
+    ])  # fmt: skip
+    assert "a.toml predicts better than b.toml" in text
+    assert "a.toml and c.toml: within 2 standard errors" in text
+    assert "c.toml: 1 observation(s) with Pareto k above 0.7" in text
+    assert text.splitlines()[2].split()[:2] == ["a.toml", "40.00"]
