@@ -22,20 +22,10 @@ def _command():
     return [exe] if exe else [sys.executable, "-m", "jaximpact.cli"]
 
 
-_CACHE = {}
-
-
-@pytest.fixture(scope="module", autouse=True)
-def shared_cache(tmp_path_factory):
-    """One compilation cache for this module's commands, as a user's runs share one: the
-    commands that simulate the same scene compile it once (and take the cached path)."""
-    _CACHE["dir"] = str(tmp_path_factory.mktemp("jit-cache"))
-    yield
-    _CACHE.clear()
-
-
 def run(*args, cwd=None):
-    env = {**os.environ, "JAXIMPACT_CACHE_DIR": _CACHE.get("dir", "off")}
+    # The test run's compilation cache (conftest.py), as a user's runs share one: the commands
+    # that simulate the same scene compile it once (and take the cached path).
+    env = dict(os.environ)
     return subprocess.run(
         [*_command(), *map(str, args)],
         capture_output=True,
