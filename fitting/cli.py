@@ -245,7 +245,6 @@ def cmd_fit(args) -> int:
     import jaximpact
     from jaximpact._io.scene_files import describe_scene_source
 
-    from ._least_squares.fit import fit
     from ._least_squares.objective import FITTABLE, check_names
     from ._least_squares.report import (
         plot_fit,
@@ -273,18 +272,7 @@ def cmd_fit(args) -> int:
         priors_for(names, priors, scene.priors)
     _check_fit_outputs(args, posterior_outputs)
     progress = not args.no_progress
-    result = fit(
-        scene,
-        data_path,
-        names,
-        initial=_parse_init(args.init),
-        solver=args.solver,
-        starts=args.starts,
-        spread=args.spread,
-        seed=args.seed,
-        max_steps=args.max_steps,
-        progress=not args.no_progress,
-    )
+    result = _run_fit(args, scene, data_path, names, _parse_init(args.init))
     print(f"scene: {describe_scene_source(scene_path)}")
     print(summary(result))
     document = result_dict(result)
@@ -443,7 +431,6 @@ def _fit_profile(args, result, document, drawn, progress) -> tuple:
 def _fit_posterior(args, scene, names, priors, result, document, outputs, drawn):
     """``--posterior``: the posterior, printed and added to ``document``, its outputs added to
     ``outputs``; returns it."""
-    from ._bayesian.posterior import sample_posterior
     from ._bayesian.report import (
         add_to_result_dict,
         plot_corner,
@@ -452,21 +439,7 @@ def _fit_posterior(args, scene, names, priors, result, document, outputs, drawn)
         write_draws,
     )
 
-    post = sample_posterior(
-        scene,
-        result.objective.observations,
-        names,
-        priors=priors,
-        likelihood=args.likelihood,
-        nu=args.nu,
-        chains=args.chains,
-        draws=args.samples,
-        warmup=args.warmup,
-        seed=args.seed,
-        fit_result=result,
-        sampler=args.sampler,
-        progress=not args.no_progress,
-    )
+    post = _sample(args, scene, names, priors, result)
     print(posterior_summary(post))
     add_to_result_dict(document, post)
     outputs += [
@@ -478,6 +451,29 @@ def _fit_posterior(args, scene, names, priors, result, document, outputs, drawn)
         ),
     ]
     return post
+
+
+def _run_fit(args, scene, data_path, names, initial):
+    """The least-squares fit with the command's options."""
+    from ._least_squares.fit import fit
+
+    return fit(
+        scene, data_path, names, initial=initial, solver=args.solver, starts=args.starts,
+        spread=args.spread, seed=args.seed, max_steps=args.max_steps,
+        progress=not args.no_progress,
+    )  # fmt: skip
+
+
+def _sample(args, scene, names, priors, result):
+    """The posterior after the fit ``result``, with the command's options."""
+    from ._bayesian.posterior import sample_posterior
+
+    return sample_posterior(
+        scene, result.objective.observations, names, priors=priors,
+        likelihood=args.likelihood, nu=args.nu, chains=args.chains, draws=args.samples,
+        warmup=args.warmup, seed=args.seed, fit_result=result, sampler=args.sampler,
+        progress=not args.no_progress,
+    )  # fmt: skip
 
 
 def _compared_models(args, names, scene_path) -> dict:
@@ -515,38 +511,27 @@ def _fit_compare(args, posteriors, alternatives, data_path, document, outputs, d
     in ``document["comparison"]``); returns the reasons for exit status 3 (a model whose fit
     or posterior did not converge; the comparison leaves out a model it could not sample)."""
     from ._bayesian.loo import compare_models
-    from ._bayesian.posterior import sample_posterior
     from ._bayesian.report import (
         add_to_result_dict,
         comparison_summary,
         plot_comparison,
         posterior_summary,
     )
-    from ._least_squares.fit import fit
     from ._least_squares.report import result_dict, summary
 
     failed, models = [], {}
     init = _parse_init(args.init)
     for label, (scene, model_names, priors) in alternatives.items():
         print(f"\n== model {label}: {', '.join(model_names)} ==")
-        result = fit(
-            scene, data_path, model_names,
-            initial={k: v for k, v in init.items() if k in model_names}, solver=args.solver,
-            starts=args.starts, spread=args.spread, seed=args.seed, max_steps=args.max_steps,
-            progress=not args.no_progress,
-        )  # fmt: skip
+        own_init = {k: v for k, v in init.items() if k in model_names}
+        result = _run_fit(args, scene, data_path, model_names, own_init)
         print(summary(result))
         entry = result_dict(result)
         models[label] = entry
         if not (result.converged or result.status == "undetermined"):
             failed.append(f"{label}: fit {result.message} (left out of the comparison)")
             continue
-        post = sample_posterior(
-            scene, result.objective.observations, model_names, priors=priors,
-            likelihood=args.likelihood, nu=args.nu, chains=args.chains, draws=args.samples,
-            warmup=args.warmup, seed=args.seed, fit_result=result, sampler=args.sampler,
-            progress=not args.no_progress,
-        )  # fmt: skip
+        post = _sample(args, scene, model_names, priors, result)
         print(posterior_summary(post))
         add_to_result_dict(entry, post)
         if not post.converged:

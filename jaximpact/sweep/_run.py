@@ -280,14 +280,18 @@ def _process_share(chunk_size, devices, process_index, process_count) -> tuple[i
     return index, count
 
 
+def _own_names(mine, index: int) -> set[str]:
+    """The files only this process writes: its chunks' part files and its manifest."""
+    return {_part_name(c) for c in mine} | {_manifest_name(index), _legacy_manifest_name(index)}
+
+
 def _clear_for_restart(directory: Path, mine, index: int, count: int, n_chunks: int) -> None:
     """Delete the results a restart replaces.
 
     Each process deletes only what it will rewrite, so concurrent processes of a distributed
     restart never delete each other's new files; process 0 also deletes what no process of
     this run owns (parts past the end, manifests of a larger old run)."""
-    own = {_part_name(c) for c in mine}
-    own |= {_manifest_name(index), _legacy_manifest_name(index)}
+    own = _own_names(mine, index)
 
     def keep(name: str) -> bool:
         if name in own:
@@ -307,7 +311,7 @@ def _clear_for_restart(directory: Path, mine, index: int, count: int, n_chunks: 
 def _clear_own_temporaries(directory: Path, mine, index: int) -> None:
     """Delete the temporaries a killed run of this process left (a part file or manifest it
     was writing when it died). Only this process writes those names, so none is in flight."""
-    own = {_part_name(c) for c in mine} | {_manifest_name(index), _legacy_manifest_name(index)}
+    own = _own_names(mine, index)
 
     def keep(name: str) -> bool:
         temporary = _TEMP.match(name)
