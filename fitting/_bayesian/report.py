@@ -234,23 +234,42 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
     plt.close(fig)
 
 
-def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
-    """Data against the posterior: the 90 % band of the model (dark) and of new data
-    (light, the model plus the likelihood's noise) at each observed impact."""
+def _observable_panels(obs, draw):
+    """One panel per observable (``captured`` aside) against impact speed, or incidence angle
+    where every impact has one speed: ``draw(ax, order, x)`` adds the model's bands at the
+    rows ``order`` (sorted by ``x``), then the data with their sigmas. Returns ``(fig, axes)``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    obs = result.fit.objective.observations
-    model, predicted = posterior_predictive(result, n)
     x_is_angle = np.unique(obs.speed).size == 1
     x = obs.angle_deg if x_is_angle else obs.speed
     names = [k for k in OBSERVABLES if k != "captured" and np.any(obs.observable == k)]
     fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
     for ax, name in zip(axes[:, 0], names, strict=True):
         sel = np.flatnonzero(obs.observable == name)
-        order = sel[np.argsort(x[sel], kind="stable")]
+        draw(ax, sel[np.argsort(x[sel], kind="stable")], x)
+        sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
+        ax.errorbar(x[sel], obs.value[sel], yerr=sigma if np.any(sigma) else None, fmt="o",
+                    color="k", ms=3, label="data")  # fmt: skip
+        ax.set_ylabel(observable_label(name))
+        if not x_is_angle:
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
+    return fig, axes
+
+
+def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
+    """Data against the posterior: the 90 % band of the model (dark) and of new data
+    (light, the model plus the likelihood's noise) at each observed impact."""
+    import matplotlib.pyplot as plt
+
+    model, predicted = posterior_predictive(result, n)
+
+    def draw(ax, order, x):
         for band, color, label in (
             (predicted, "C0", "90 % predictive"),
             (model, "C1", "90 % model"),
@@ -270,20 +289,8 @@ def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
         # zero width and would be invisible.
         ax.plot(x[order], np.median(model[:, order], axis=0), "_-", color="C1", lw=1, ms=8,
                 label="model median")  # fmt: skip
-        sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
-        ax.errorbar(
-            x[sel],
-            obs.value[sel],
-            yerr=sigma if np.any(sigma) else None,
-            fmt="o",
-            color="k",
-            ms=3,
-            label="data",
-        )
-        ax.set_ylabel(observable_label(name))
-        ax.set_xscale("log" if not x_is_angle else "linear")
-        ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
+
+    fig, axes = _observable_panels(result.fit.objective.observations, draw)
     axes[0, 0].legend(fontsize=8)
     axes[0, 0].set_title(
         "posterior predictive: "
@@ -338,23 +345,16 @@ def comparison_summary(rows: list[dict]) -> str:
 def plot_comparison(path, results: dict[str, PosteriorResult], n: int = 200) -> None:
     """Data against each model's posterior: its median and 90 % band at each observed
     impact, side by side (one panel per observable)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     first = next(iter(results.values()))
     obs = first.fit.objective.observations
-    x_is_angle = np.unique(obs.speed).size == 1
-    x = obs.angle_deg if x_is_angle else obs.speed
-    names = [k for k in OBSERVABLES if k != "captured" and np.any(obs.observable == k)]
-    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
     models = {label: posterior_predictive(r, n)[0] for label, r in results.items()}
+    x_is_angle = np.unique(obs.speed).size == 1
     # A small offset along x per model, so that bands at the same impact stay apart.
     spread = 0.012 if x_is_angle else 0.02
-    for ax, name in zip(axes[:, 0], names, strict=True):
-        sel = np.flatnonzero(obs.observable == name)
-        order = sel[np.argsort(x[sel], kind="stable")]
+
+    def draw(ax, order, x):
         for k, (label, model) in enumerate(models.items()):
             shift = (k - 0.5 * (len(models) - 1)) * spread
             xs = x[order] + shift * np.ptp(x) if x_is_angle else x[order] * (1.0 + shift)
@@ -362,15 +362,8 @@ def plot_comparison(path, results: dict[str, PosteriorResult], n: int = 200) -> 
             ax.vlines(xs, lo, hi, color=f"C{k}", lw=3, alpha=0.5)
             ax.plot(xs, mid, "_-", color=f"C{k}", lw=1, ms=8,
                     label=f"{Path(label).name} (median, 90 %)")  # fmt: skip
-        sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
-        ax.errorbar(x[sel], obs.value[sel], yerr=sigma if np.any(sigma) else None, fmt="o",
-                    color="k", ms=3, label="data")  # fmt: skip
-        ax.set_ylabel(observable_label(name))
-        if not x_is_angle:
-            ax.set_xscale("log")
-            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel("incidence angle (deg)" if x_is_angle else "impact speed (m/s)")
+
+    fig, axes = _observable_panels(obs, draw)
     axes[0, 0].legend(fontsize=7)
     axes[0, 0].set_title("the models' posteriors against the data", fontsize=9)
     fig.tight_layout()
