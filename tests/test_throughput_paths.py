@@ -203,3 +203,34 @@ def test_float32_pool_is_batch_independent(table1):
             atol=1e-6,
             err_msg=k,
         )
+
+
+@pytest.mark.slow  # compiles two programs (~30 s on 2 cores): CI's second step
+def test_float64_pool_matches_the_chunked_loop(table1, monkeypatch):
+    """float64 with ``loop="pool"`` (the posterior sampler's evaluations): an impact's bits do
+    not depend on its batch or place, and the values are those of the chunked lean loop (the
+    default) to a small multiple of rounding: same status, same step count."""
+    traced = []
+    pool = sim.step_loop.solve_pool
+    monkeypatch.setattr(
+        sim.step_loop, "solve_pool", lambda *a, **k: traced.append(1) or pool(*a, **k)
+    )
+    speed, angle, omega0 = slow_impacts(40, seed=7)
+    whole = sim._simulate(table1, speed, angle, omega0, chunk=8, loop="pool")
+    assert traced  # the pool ran (float64 no longer falls back to the chunked loop)
+    perm = np.random.default_rng(1).permutation(40)
+    shuffled = sim._simulate(table1, speed[perm], angle[perm], omega0[perm], chunk=8, loop="pool")
+    lean = sim._simulate(table1, speed, angle, omega0, chunk=8)
+    steps = np.asarray(whole.steps)
+    assert steps.max() > 3 * steps.min()  # uneven lanes: the pool refills them
+    inverse = np.argsort(perm)
+    for k in FIELDS:
+        a = np.asarray(getattr(whole, k))
+        np.testing.assert_array_equal(np.asarray(getattr(shuffled, k))[inverse], a, k)
+    for k in ("status", "steps"):
+        np.testing.assert_array_equal(np.asarray(getattr(whole, k)), np.asarray(getattr(lean, k)))
+    for k in ("cor_n", "vt_out", "omega_out", "contact_time"):
+        np.testing.assert_allclose(
+            np.asarray(getattr(whole, k)), np.asarray(getattr(lean, k)), rtol=1e-9, atol=1e-12,
+            err_msg=k,
+        )  # fmt: skip

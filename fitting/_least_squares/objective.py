@@ -43,6 +43,7 @@ import numpy as np
 
 import jaximpact
 from jaximpact import scene_parameters, stiffness_estimate
+from jaximpact._engine.simulate import _simulate
 
 from .._data import OBSERVABLES, Observations, load_observations
 
@@ -166,6 +167,10 @@ class Objective:
       once from the stiffness at ``check_values`` (or the scene's values) since the choice
       cannot be made on traced values.
     - `check_values`: parameter sets (dicts) at which the stiffness is estimated.
+    - `loop`: the simulator's step loop for the values (``jaximpact._engine.simulate``'s
+      ``_simulate``); default its ``default_loop``. ``"pool"`` refills lanes as impacts
+      finish: for batches whose impacts need very different step counts (a posterior's
+      points from the prior).
 
     Call :meth:`residuals` with the physical parameter values (a 1-D array in `params` order).
     The residual function is jitted once; new values do not recompile it.
@@ -185,8 +190,10 @@ class Objective:
         failure_residual: float = 1e3,
         method: str | None = None,
         check_values: Sequence[Mapping[str, float]] = (),
+        loop: str | None = None,
     ):
         self.params = check_names(params, scene)
+        self.loop = loop
         if not isinstance(observations, Observations):
             observations = load_observations(observations)
         obs = observations
@@ -275,7 +282,7 @@ class Objective:
         # runs in ~0.6x the time of the full state (BENCHMARKS.md, "Fit time").
         scene = self._scene_with(dict(zip(self.params, theta, strict=True)))
         scene = scene.replace(solver={"outputs": "rebound"})
-        return jaximpact.simulate(
+        return _simulate(
             scene,
             self._speed,
             self._angle,
@@ -283,6 +290,7 @@ class Objective:
             method=self.method,
             adjoint=adjoint,
             program=program,
+            loop=self.loop,
         )
 
     def hertz_time(self, theta=None):
@@ -395,6 +403,7 @@ class Objective:
         settings = (
             self.params,
             self.method,
+            self.loop,
             self.failure_residual,
             self._outputs,
             sorted(self._overrides),

@@ -542,6 +542,20 @@ CHUNK_ONE_DEVICE = 8192
 # 30,500 at 256 and 33,900 at 64 (which compiled in 24 s against 9 s); fused, 64 lanes ran
 # 23,600, 16 21,300 and 256 19,200 (measured with 256-bit vectors).
 CHUNK_LOOP_KERNEL = 128
+
+
+def default_loop(dtype) -> str:
+    """The step loop of a batch of ``dtype`` whose steps per impact nobody knows in advance:
+    ``"pool"`` (lanes refilled as impacts finish) in float32, ``"lean"`` (chunks of lanes,
+    each waiting for its slowest) in float64. Measured (issue 12): in float32 the pool ran
+    9-12x the chunked loop on slow impacts near capture, where a few grazing ones take 40x
+    the median steps, and 0.95-1.01x on the oblique benchmark; in float64 0.86-0.93x on that
+    benchmark (1.31x near capture). Where the steps per impact spread widely (a posterior's
+    points drawn from the prior: chunks of 128 lanes ran 7.9x the steps their impacts
+    needed), the pool pays in float64 too: ``loop="pool"`` (3.8x the points per second)."""
+    return "pool" if jnp.finfo(dtype).bits < 64 else "lean"
+
+
 # The pooled lean loop's tail: once no impact is left to start and at most 1/TAIL_FRACTION of
 # the lanes still run, they go on in that many lanes (``step_loop.solve_pool``).
 TAIL_FRACTION = 16
@@ -704,17 +718,9 @@ def _solve_batch(terms, cfg, chunk, shards, loop, adjoint, inputs):
     n_chunks = -(-size // chunk) if chunk else 1
     width = min(-(-size // (n_chunks * group)) * group, size)
     first = jax.tree_util.tree_map(lambda x: x[0], inputs)
-    if (
-        loop == "pool"
-        and chunk
-        and jnp.finfo(speed.dtype).bits < 64
-        and _lean_supported(_problem(terms, cfg, *first))
-    ):
-        # float32: lanes that take the next impact as theirs finish (``step_loop.solve_pool``),
-        # for every batch size alike. Measured (issue 12): 9-12x the chunked loop on slow
-        # impacts near capture, where a few grazing ones take 40x the median steps; 0.95-1.01x
-        # on the oblique benchmark. Not for float64, where it ran 0.86-0.93x the chunked loop
-        # on that benchmark (1.31x near capture).
+    if loop == "pool" and chunk and _lean_supported(_problem(terms, cfg, *first)):
+        # lanes that take the next impact as theirs finish (``step_loop.solve_pool``; which
+        # batches get it: ``default_loop``)
         tail = -(-width // (TAIL_FRACTION * group)) * group
         return _solve_pooled(terms, cfg, inputs, width, tail)
     if not chunk or size <= chunk:
@@ -820,8 +826,8 @@ def _simulate(
     """``simulate`` with the batch path's private settings: ``chunk``, lanes per device in one
     vmapped solve (default ``_default_chunk``; 0: the whole batch in one); ``loop``: the step
     loop, ``"lean"`` (``step_loop``, chunked), ``"pool"`` (the lean loop with lanes refilled
-    as impacts finish; float32 only, else ``"lean"``) or ``"diffrax"`` (``diffeqsolve``,
-    differentiated with ``adjoint``); default (None): ``"pool"``. Values and derivatives come
+    as impacts finish) or ``"diffrax"`` (``diffeqsolve``, differentiated with ``adjoint``);
+    default (None): :func:`default_loop`. Values and derivatives come
     from the chosen loop (``_simulate_flat``). The lean loop gives diffeqsolve's bits; the pool
     runs 9-12x faster on slow float32 impacts near capture, not bit for bit
     (tests/test_throughput_paths.py).
@@ -860,7 +866,7 @@ def _simulate(
     # per_state form every lane on the vectorized path: a multiple of `lane_group` lanes per
     # device (and per chunk, in `_simulate_flat`), padded with copies of the last impact.
     group = max(2, lane_group(dtype, cfg.stages))
-    loop = "pool" if loop is None else loop
+    loop = default_loop(dtype) if loop is None else loop
     inputs, shards = _shard_over_devices(inputs, size, group)
     chunk = _default_chunk(shards, dtype) if chunk is None else chunk
     result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)

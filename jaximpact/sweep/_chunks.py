@@ -18,9 +18,7 @@ _STIFFNESS: list = []  # the jitted stiffness estimate, made on first use (jax i
 
 
 # How the sweep's program solves a chunk: the batch path of ``jaximpact.simulate`` (its
-# ``_simulate``), so that a sweep gives simulate's bits. ``loop``: simulate's choice for
-# concrete inputs (a sweep never differentiates).
-_LOOP = "pool"
+# ``_simulate``), so that a sweep gives simulate's bits (its ``default_loop``).
 
 
 def _runner(terms, cfg, devices):
@@ -44,12 +42,13 @@ def _runner(terms, cfg, devices):
 
     from .._engine.devices import compiler_options
     from .._engine.results import OUTPUT_FIELDS
-    from .._engine.simulate import _default_chunk, _simulate_flat
+    from .._engine.simulate import _default_chunk, _simulate_flat, default_loop
     from .._engine.tsit5 import lane_group
 
     shards = len(devices)
     chunk = _default_chunk(shards)
-    key = (terms, cfg, tuple(d.id for d in devices), chunk, _LOOP)
+    loop = default_loop(jnp.result_type(float))
+    key = (terms, cfg, tuple(d.id for d in devices), chunk, loop)
     if key not in _RUNNERS:
         mesh = Mesh(np.array(devices), ("batch",))
         sharding = NamedSharding(mesh, P("batch"))
@@ -60,7 +59,7 @@ def _runner(terms, cfg, devices):
             # as simulate: at least 2 lanes, whole lane groups per device (per_state form)
             pad = -size % (shards * max(2, lane_group(speed.dtype, cfg.stages)))
             inputs = jax.tree_util.tree_map(lambda x: jnp.pad(x, (0, pad), mode="edge"), inputs)
-            result = _simulate_flat(terms, cfg, *inputs, chunk=chunk, shards=shards, loop=_LOOP)
+            result = _simulate_flat(terms, cfg, *inputs, chunk=chunk, shards=shards, loop=loop)
             values = jnp.stack([getattr(result, k)[:size] for k in OUTPUT_FIELDS])
             return result.status[:size], values
 
