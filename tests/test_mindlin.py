@@ -241,7 +241,9 @@ def _reference_twin(scene, friction, factor):
     )
 
 
-# Seeded points away from the stick/slip switches' edge cases: (speed, angle, friction, G*/G).
+# Seeded points away from the stick/slip switches' edge cases: (speed, angle, friction, G*/G),
+# and a rebound that sticks from the first contact until late (where a spring started
+# unloaded at the contact floor was 2.9e-5 of the speed off in the spin).
 REFERENCE_POINTS = [
     (float(v), float(a), float(f), float(g))
     for v, a, f, g in zip(
@@ -251,12 +253,13 @@ REFERENCE_POINTS = [
         ),
         strict=True,
     )
-]
+] + [(2.99, 13.6, 0.39, 0.83)]
 
 
 def test_smooth_model_agrees_with_the_exact_reference():
-    """Smooth (regularized, floor shells) against the switched reference (rtol 1e-12):
-    tolerance policy as the rigid model: rebound velocities to ~1e-4 of the speed."""
+    """Smooth (regularized, floor shells) against the switched reference (rtol 1e-12) at the
+    default settings: rebound velocities within 1e-5 of the speed (issue 35's target;
+    benchmarks/mindlin_reference.py: at most 2.5e-6 on 40 random rebounds)."""
     speed, angle, friction, factor = (np.array(c) for c in zip(*REFERENCE_POINTS, strict=True))
     scene = ji.load_scene("kharaz2001")
     res = ji.simulate(kharaz_mindlin(friction=friction, G_star=G_ALUMINA * factor), speed, angle)
@@ -265,9 +268,9 @@ def test_smooth_model_agrees_with_the_exact_reference():
         assert exact.status == "rebound"
         assert abs(exact.ledger_residual) < 1e-9
         r = 2.5e-3
-        assert float(res.vn_out[i]) == pytest.approx(exact.vn_out, abs=5e-5 * v)
-        assert float(res.vt_out[i]) == pytest.approx(exact.vt_out, abs=5e-5 * v)
-        assert float(res.omega_out[i]) * r == pytest.approx(exact.omega_out * r, abs=5e-5 * v)
+        assert float(res.vn_out[i]) == pytest.approx(exact.vn_out, abs=1e-5 * v)
+        assert float(res.vt_out[i]) == pytest.approx(exact.vt_out, abs=1e-5 * v)
+        assert float(res.omega_out[i]) * r == pytest.approx(exact.omega_out * r, abs=1e-5 * v)
         assert float(res.loss_friction[i]) == pytest.approx(
             exact.loss_friction, abs=1e-5 * exact.energy_in
         )

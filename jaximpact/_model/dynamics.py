@@ -140,6 +140,12 @@ def _friction_load(terms: Terms, f):
     return jnp.abs(f["F_n"]) if terms.friction_load == "net" else -f["F_H"]
 
 
+def friction_limit(terms: Terms, p: ScaledParameters, n, ndot, w):
+    """The Coulomb limit ``f N`` of the tangential force at this normal state (the Mindlin
+    spring's cap: without the spring's own normal force)."""
+    return p.friction * _friction_load(terms, _normal_loads(terms, p, n, ndot, w)[0])
+
+
 def contact_loads(terms: Terms, p: ScaledParameters, y):
     """Every force and moment on the sphere at state ``y`` (a dict; absent terms are left out)."""
     n, ndot = y["n"], y["ndot"]
@@ -194,7 +200,7 @@ def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, w, M):
     wdot = (-p.radius * F_t + M) / p.inertia if terms.rotation else jnp.zeros_like(n)
 
     def limit_of(n_, ndot_, w_):
-        return p.friction * _friction_load(terms, _normal_loads(terms, p, n_, ndot_, w_)[0])
+        return friction_limit(terms, p, n_, ndot_, w_)
 
     limit, limit_rate = jax.jvp(limit_of, (n, ndot, w), (ndot, f["F_n"], wdot))
     # c = f N / k_t and its rate (k_t > 0 above -floor; outside, the cap is irrelevant).
