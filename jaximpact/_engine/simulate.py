@@ -1,5 +1,6 @@
 """``simulate``: the one public driver, and the only caller of ``diffrax.diffeqsolve``."""
 
+import collections
 import dataclasses
 import functools
 
@@ -604,6 +605,8 @@ def _simulate_flat(terms, cfg, *args, **kwargs):
     # XLA options only on a program of its own (JAX refuses them on a nested jit)
     alone = compiled_alone(args)
     options = compiler_options(throughput=cfg.stages == "per_state") if alone else {}
+    if alone and jax.config.jax_compilation_cache_dir:
+        return _from_program_cache(terms, cfg, options, *args, **kwargs)
     key = tuple(sorted(options.items()))
     if key not in _SOLVE_FLAT_JIT:
         _SOLVE_FLAT_JIT[key] = eqx.filter_jit(_solve_flat, compiler_options=options or None)
@@ -638,6 +641,44 @@ def _solve_flat(
 
 # ``_solve_flat`` compiled with each set of XLA options (``compiler_options``), made on first use
 _SOLVE_FLAT_JIT: dict = {}
+# Concrete batches' programs of this process, by settings and input shapes and shardings (the
+# most recently used few).
+_CACHED_PROGRAMS: collections.OrderedDict = collections.OrderedDict()
+_CACHED_PROGRAMS_KEPT = 32
+
+
+def _from_program_cache(
+    terms, cfg, options, params, speed, angle_deg, omega0, adjoint=None, **settings
+):
+    """:func:`_solve_flat` on concrete inputs through the traced-program cache
+    (``jaximpact._io.cache.compiled_program``): a process whose compilation cache already
+    holds this batch's program loads it instead of tracing and lowering it again (about 2 s of
+    a warm process's first ``simulate``). The same program as the ``jit`` path (the same
+    function traced at the same shapes), so the same bits; values only (a traced input never
+    comes here)."""
+    from .._io.cache import compiled_program
+
+    inputs = (params, speed, angle_deg, omega0)
+    example = jax.tree_util.tree_map(
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding), inputs
+    )
+    settings = dict(sorted(settings.items()))
+    key = repr((terms, cfg, adjoint, settings, sorted(options.items()), jax.local_devices()))
+    memo = (key, repr(example))
+    if memo not in _CACHED_PROGRAMS:
+        fields = tuple(ImpactResult.__dataclass_fields__)
+
+        def solve(params, speed, angle_deg, omega0):
+            r = _solve_flat(terms, cfg, params, speed, angle_deg, omega0, adjoint, **settings)
+            return tuple(getattr(r, f) for f in fields)
+
+        program, _ = compiled_program("simulate", solve, example, key, options or None)
+        _CACHED_PROGRAMS[memo] = (program, fields)
+        while len(_CACHED_PROGRAMS) > _CACHED_PROGRAMS_KEPT:
+            _CACHED_PROGRAMS.popitem(last=False)
+    _CACHED_PROGRAMS.move_to_end(memo)
+    program, fields = _CACHED_PROGRAMS[memo]
+    return ImpactResult(**dict(zip(fields, program(*inputs), strict=True)))
 
 
 def _lean_method(cfg: Integration) -> bool:
