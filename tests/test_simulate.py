@@ -185,6 +185,33 @@ def test_no_recompilation_when_values_change(table1):
         _simulate._solve_one = original
 
 
+@pytest.mark.slow  # compiles the jit path's program too: CI's second step
+def test_program_cache_path_gives_the_jit_paths_bits(table1, tmp_path):
+    """With the compilation cache on, a concrete batch runs the program from the traced-program
+    cache (a warm process loads it instead of tracing); with it off, the jitted function. The
+    same program: bitwise the same results, and the traced program is on disk."""
+    from jaximpact._io.cache import enable_compilation_cache
+
+    speed, angle, omega0 = np.array([0.05, 1.3, 4.0]), np.array([0.0, 35.0, -60.0]), 3e3
+    previous = jax.config.jax_compilation_cache_dir
+    try:
+        enable_compilation_cache(tmp_path)
+        cached = ji.simulate(table1, speed, angle, omega0)
+        assert list((tmp_path / "traced").glob("simulate-*.jaxexport"))
+        jax.config.update("jax_compilation_cache_dir", None)
+        plain = ji.simulate(table1, speed, angle, omega0)
+    finally:
+        if previous:
+            enable_compilation_cache(previous)
+        else:
+            jax.config.update("jax_compilation_cache_dir", None)
+    assert int(np.asarray(cached.status)[0]) == Status.CAPTURED
+    for k in ("status", "steps", "cor_n", "vt_out", "omega_out", "contact_time", "energy_out"):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(cached, k)), np.asarray(getattr(plain, k)), k
+        )
+
+
 def test_leaves_out_unneeded_terms(table1):
     params = {k: jnp.asarray(v) for k, v in _simulate.scene_parameters(table1).items()}
     normal = _simulate.required_terms(table1, params, jnp.zeros(3), jnp.zeros(3))
