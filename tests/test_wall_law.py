@@ -22,6 +22,7 @@ from jaximpact.wall_law import (
     write_wall_law,
 )
 from jaximpact.wall_law._capture import scene_with
+from jaximpact.wall_law._table import _cell
 
 ANGLES = (20.0, 60.0)
 SPINS = (-2e4, 2e4)
@@ -463,6 +464,7 @@ def cli(args, capsys):
         (["--speed", "0.5,2"], "--speed"),
         (["--spin", "a"], "--spin"),
         (["--radius", "-1"], "--radius"),
+        (["--capture-tol", "2"], "--capture-tol"),
         (["--draws", "missing.nc"], "missing.nc"),
         (["no_such_scene.toml"], "no_such_scene.toml"),
     ],
@@ -504,6 +506,106 @@ def test_command_writes_the_files(tmp_path, capsys):
     assert "1 radius x 2 angle x 2 spin x 8 speed nodes" in out
     for name in ("wall_law.nc", "wall_law.parquet", "jaximpact_wall_law.h", "openfoam", "fluent"):
         assert (tmp_path / "wl" / name).exists()
+
+
+# ----- several radii: radius nodes, stick rows, a second capture above a row's top -----
+# Table 1 sticks at every speed below a radius r0 of about 9.49 um, and near r0 at 60 deg it
+# sticks again at about 110 m/s. One radius per batch of the same four lanes as `law` (the
+# same compiled programs).
+WIDE = (8e-6, 13e-6)
+WIDE_TOL = 1e-2
+
+
+@pytest.fixture(scope="module")
+def wide_law(scene):
+    from jaximpact.wall_law import _table
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_table, "RADII_PER_BATCH", 1)
+        return wall_law(
+            scene, radius=WIDE, angle_deg=ANGLES, omega0=SPINS, speed_ratio=RATIOS,
+            capture_tol=WIDE_TOL, refine_tol=1.0,
+        )  # fmt: skip
+
+
+def test_radius_nodes_hold_the_capture_speed_between_them(wide_law, scene):
+    law = wide_law
+    stick = law.stick.all(axis=(1, 2))
+    assert stick[0] and not stick[-1] and np.all(np.diff(stick.astype(int)) <= 0)
+    assert np.all(np.isinf(law.capture_speed[stick])) and np.all(law.capture_status[stick] == 4)
+    # each lane's jump from sticking at every speed to a finite capture speed (r0 depends on
+    # the angle): between two nodes 0.2 % apart, an interval the report names
+    lane_stick = law.stick.reshape(law.radius.size, -1)
+    bands = law.radius_report["unresolved"]
+    for column in lane_stick.T:
+        i = np.flatnonzero(~column)[0]
+        lo, hi = law.radius[i - 1], law.radius[i]
+        assert column[i - 1] and hi / lo - 1 < 2.1e-3
+        assert any(np.isclose(a, lo) and np.isclose(b, hi) for a, b, _ in bands)
+    r0 = law.radius[np.flatnonzero(~stick)[0]]
+    # between the nodes, beyond the jump's band: the interpolated capture speed against
+    # capture_speed itself, within the tolerance the midpoints were held to (x2: the
+    # midpoint test bounds the error where it looks)
+    r = np.geomspace(r0 * 1.003, WIDE[1], 9)
+    r = r[[not any(lo <= x <= hi for lo, hi, _ in bands) for x in r]]
+    a = np.repeat(np.array(ANGLES), r.size)
+    rr = np.tile(r, len(ANGLES))
+    for w in SPINS:
+        cap = ji.capture_speed(lanes_of(scene, rr), a, np.full(rr.size, w))
+        ir, wr, _ = _cell(np.log(law.radius), np.log(rr))
+        ia, wa, _ = _cell(law.angle_deg, a)
+        iw, ww, _ = _cell(law.omega0, np.full(rr.size, w))
+        table = law.reference_at((ir, ia, iw), (wr, wa, ww), a)
+        assert np.max(np.abs(table / np.asarray(cap.speed) - 1)) < 2 * WIDE_TOL
+
+
+def lanes_of(scene, radius):
+    values = {k: np.full(radius.size, float(v)) for k, v in ji.scene_parameters(scene).items()}
+    values["radius"] = radius
+    return scene_with(scene, values)
+
+
+def test_stick_rows_and_a_second_capture_against_simulate(wide_law, scene):
+    law = wide_law
+    rng = np.random.default_rng(2)
+    n = 24
+    # below the stick radius, at any speed; and above a row's top where the rows stick again
+    j = ANGLES.index(60.0)
+    again = law.captured_above_top[:, j] == 1
+    assert again.any(), "rows at 60 deg stick again above their top"
+    i, k = (int(v[0]) for v in np.nonzero(again))
+    r = np.concatenate([np.full(n, 8.6e-6), np.full(4, law.radius[i])])
+    angle = np.concatenate([rng.uniform(0, 60, n), np.full(4, 60.0)])
+    speed = np.concatenate([np.geomspace(0.05, 900, n), [0.0] * 4])
+    # (the second capture lies between the top and the next speed node: checked from there)
+    above = law.speed_ratio[np.searchsorted(law.speed_ratio, law.top_ratio[i, j, k]) + 1]
+    speed[n:] = above * law.capture_speed[i, j, k] * np.array([1.0, 1.2, 1.5, 2.0])
+    speed = np.minimum(speed, 999.0)
+    spin = np.concatenate([np.zeros(n), np.full(4, SPINS[k])])
+    th = np.radians(angle)
+    code, *_ = law.evaluate(r, speed * np.cos(th), speed * np.sin(th), spin)
+    assert np.all(code & 1), "captured"
+    assert np.all(code[n:] & 2), "above the top: flagged"
+    res = ji.simulate(lanes_of(scene, r), speed, angle, spin)
+    assert np.all(np.asarray(res.status) == 1), np.asarray(res.status)
+
+
+def test_c_header_matches_python_across_radius_and_above_the_top(wide_law, tmp_path):
+    law = wide_law
+    evaluate = c_wall_law(compile_c(tmp_path, law, SHIM, "shim"))
+    rng = np.random.default_rng(6)
+    n = 3000
+    radius = np.exp(rng.uniform(np.log(7e-6), np.log(14e-6), n))
+    speed = np.exp(rng.uniform(np.log(0.05), np.log(1500.0), n))
+    th = np.radians(rng.uniform(0, 89, n))
+    spin = rng.uniform(-3e4, 3e4, n)
+    vn, vt = speed * np.cos(th), speed * np.sin(th) * rng.choice([-1, 1], n)
+    got = evaluate(radius, vn, vt, spin)
+    want = law.evaluate(radius, vn, vt, spin)
+    np.testing.assert_array_equal(got[0], want[0])
+    for g, w in zip(got[1:], want[1:], strict=True):
+        np.testing.assert_allclose(g, w, rtol=1e-13, atol=1e-13)
+    assert {0, 1, 2, 3} <= set(np.unique(want[0]))
 
 
 @pytest.mark.slow  # the default grid (about a minute) and 2,000 impacts

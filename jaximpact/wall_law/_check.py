@@ -6,7 +6,7 @@ import numpy as np
 
 from .._engine.simulate import scene_parameters
 from ._capture import scene_with
-from ._table import WallLaw, _cell
+from ._table import SPEED_MAX, WallLaw, _cell
 
 __all__ = ["random_points", "compare_with_simulate"]
 
@@ -39,7 +39,9 @@ def compare_with_simulate(law: WallLaw, scene, points: dict, evaluate=None) -> d
     ia, wa, _ = _cell(law.angle_deg, angle)
     iw, ww, _ = _cell(law.omega0, omega)
     v_ref = law.reference_at((ir, ia, iw), (wr, wa, ww), angle)
-    speed = x * v_ref
+    # where the table sticks at every speed (below the stick radius), the ratio in m/s
+    # (and no faster than the speed range: a point above it is taken at its top)
+    speed = np.minimum(x * np.where(np.isfinite(v_ref), v_ref, 1.0), SPEED_MAX)
     vn, vt = speed * np.cos(th), speed * np.sin(th)
     code, vn_out, vt_out, omega_out = evaluate(r, vn, vt, omega)
     params = {k: float(v) for k, v in scene_parameters(scene).items()}

@@ -56,9 +56,13 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
     """The text of ``jaximpact_wall_law.h`` for ``law``."""
     R, A, W, X = law.shape
     capture = law.speed_axis == "capture_ratio"
-    reference = law.reference_speed
-    if capture:
-        reference = reference * np.cos(np.radians(law.angle_deg))[None, :, None]
+    reference = law.reference_table
+    g_note = (
+        "\n   Capture speed: g = (v_c cos(angle))^(-1/4) is interpolated, v_c = g^-4 / cos(angle);"
+        "\n   g = 0 on radii where the sphere sticks at every speed (captured whatever the speed)."
+        if capture
+        else ""
+    )
     scene_lines = "\n".join(f"     {k} = {v}" for k, v in law.scene.items())
     axis = (
         "speed / capture speed of the (radius, angle, spin); below 1 the sphere sticks"
@@ -78,7 +82,9 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
    Speed axis: {axis}.
    Interpolation: log(radius), angle (deg), spin (rad/s) linear; speed in
    u = {"asinh(sqrt(x - 1))" if capture else "x^0.2"}; outside the table the nearest edge (flagged
-   JAXIMPACT_WL_CLAMPED). Tangential speeds of either sign: the table is mirrored.
+   JAXIMPACT_WL_CLAMPED), and above a row's valid top (the speed range, or a speed at which
+   the sphere sticks again) that row's last results, also flagged JAXIMPACT_WL_CLAMPED.{g_note}
+   Tangential speeds of either sign: the table is mirrored.
 
    Scene:
 {scene_lines}
@@ -111,11 +117,16 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
         "/* interpolation coordinate u of the speed nodes */\n"
         + _array("jaximpact_wl_u", law.u_of(law.speed_ratio)),
         (
-            "/* normal capture speed v_c cos(angle), m/s [radius][angle][spin] */\n"
+            "/* g = (v_c cos(angle))^(-1/4), (m/s)^(-1/4); 0: sticks at every speed "
+            "[radius][angle][spin] */\n"
             if capture
             else "/* reference speed (1 m/s) [radius][angle][spin] */\n"
         )
         + _array("jaximpact_wl_reference", reference),
+        "/* u of each row's valid top speed [radius][angle][spin] */\n"
+        + _array("jaximpact_wl_u_top", law.u_top),
+        "/* 1: the row sticks again above its top; 0: its top is the speed range's */\n"
+        + _array("jaximpact_wl_captured_above_top", law.captured_above_top),
         "/* vn_out / vn [radius][angle][spin][speed] */\n"
         + _array("jaximpact_wl_cor_n", law.cor_n),
         "/* vt_out / speed */\n" + _array("jaximpact_wl_vt_ratio", law.vt_ratio),

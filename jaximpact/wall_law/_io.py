@@ -16,15 +16,31 @@ NETCDF = "wall_law.nc"
 PARQUET = "wall_law.parquet"
 INSTALL_HINT = 'pip install "jaximpact[wall-law]" (xarray and h5netcdf)'
 
-STATUS_TEXT = {0: "rebound", 1: "captured"}
+STATUS_TEXT = {0: "rebound", 1: "captured", -1: "not_simulated"}
 
 #: Variables of the table: (dims: 3 = per lane, 4 = per cell), unit, description.
 VARIABLES = {
     "capture_speed": (3, "m/s", "capture speed: below it the sphere sticks (0: no adhesion)"),
     "capture_status": (3, "1", "capture_speed's status (flag_meanings)"),
     "reference_speed": (3, "m/s", "the speed the speed_ratio axis is relative to"),
+    "top_ratio": (
+        3,
+        "1",
+        "largest valid speed_ratio of the row (the speed range, or below a second capture); "
+        "the nodes above it repeat its results",
+    ),
     "speed": (4, "m/s", "impact speed of the cell: speed_ratio * reference_speed"),
-    "status": (4, "1", "simulate's status of the cell: 0 rebound, 1 captured"),
+    "captured_above_top": (
+        3,
+        "1",
+        "1 where the row sticks again above top_ratio, 0 where the speed range ends it",
+    ),
+    "status": (
+        4,
+        "1",
+        "simulate's status of the cell: 0 rebound, 1 captured, -1 not simulated (a radius that "
+        "sticks at every speed, or a speed above the speed range)",
+    ),
     "cor_n": (4, "1", "normal restitution vn_out / v_n"),
     "cor_t": (4, "1", "tangential restitution vt_out / v_t (NaN at angle 0)"),
     "vt_ratio": (4, "1", "vt_out / speed (the tabulated tangential result)"),
@@ -78,8 +94,8 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
             )
             value = value.astype(np.int32)
         if name == "status":
-            attrs["flag_values"] = np.array([0, 1], dtype=np.int32)
-            attrs["flag_meanings"] = "rebound captured"
+            attrs["flag_values"] = np.array([-1, 0, 1], dtype=np.int32)
+            attrs["flag_meanings"] = "not_simulated rebound captured"
             value = value.astype(np.int32)
         data[name] = (dims3 if nd == 3 else dims4, value, attrs)
     for name, (unit, about) in UNCERTAINTY.items():

@@ -17,6 +17,20 @@ Axes
   changes slowly with ``log x`` far above it, where ``u ~ (log x)/2 + log 2``) or
   ``u = x^0.2`` (speed: the damping enters as ``v^0.2``, eq. 21/24 of the paper).
 
+Capture speed across radius and angle: the table interpolates ``g = (v_c cos(angle))^(-1/4)``
+(multilinear in log radius, angle and spin) and inverts it, ``v_c = g^-4 / cos(angle)``. The
+capture speed falls about like ``r^-2`` at large radii (``g`` about linear in ``log r``) and
+grows without bound toward the radius below which the sphere sticks at every speed: such a
+radius is a *stick row* with ``g = 0``, so that between it and the next rebounding radius the
+interpolated capture speed rises to infinity instead of jumping. Radius nodes are added
+(bisection in ``log r``) until the capture speed at every interval's midpoint is within
+``capture_tol`` of its interpolation.
+
+Each (radius, angle, spin) row is valid up to ``top_ratio``: the largest speed ratio of the row
+within the speed range (1000 m/s) below any speed at which the sphere sticks again. A query
+above it is flagged as clamped and answered as captured where the rows stick again there
+(``captured_above_top``, interpolated, at least 0.5), else with the row's last valid values.
+
 Tabulated (dimensionless, so that they interpolate smoothly): ``cor_n = vn_out / v_n``,
 ``vt_ratio = vt_out / speed`` and ``spin_ratio = omega_out r / speed``. The node at
 ``speed_ratio = 1`` (capture mode) is the capture speed itself: ``cor_n = 0`` there (the
@@ -26,6 +40,7 @@ nodes (the simulator cannot tell a rebound from a capture exactly at the thresho
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -52,6 +67,14 @@ DEFAULT_SPEED_RATIOS = 1.0 + np.sinh(np.linspace(0.0, np.arcsinh(np.sqrt(199.0))
 DEFAULT_SPEEDS = np.geomspace(0.01, 100.0, 49)
 SPEED_MAX = 1000.0  # m/s (docs/input_ranges.md)
 OUTPUTS = ("cor_n", "vt_ratio", "spin_ratio")
+#: Status of a cell that was not simulated (a stick row, or a speed above SPEED_MAX).
+NOT_SIMULATED = -1
+#: Radius nodes: at most this many bisections of the given intervals, and none narrower than
+#: RADIUS_MIN_STEP in log r (0.1 % of the radius).
+RADIUS_LEVELS = 12
+RADIUS_MIN_STEP = 1e-3
+#: Several radii: each batch holds this many radii's worth of lanes of the first pass.
+RADII_PER_BATCH = 8
 
 
 class WallLawError(RuntimeError):
@@ -89,6 +112,36 @@ class WallLaw:
     seconds: float = 0.0
     impacts: int = 0
     uncertainty: dict = field(default_factory=dict)
+    top_ratio: np.ndarray | None = None
+    captured_above_top: np.ndarray | None = None
+    radius_report: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.top_ratio is None:
+            self.top_ratio = np.full(self.capture_speed.shape, float(self.speed_ratio[-1]))
+        if self.captured_above_top is None:
+            self.captured_above_top = np.zeros(self.capture_speed.shape)
+
+    @property
+    def stick(self) -> np.ndarray:
+        """``(radius, angle, spin)``: rows where the sphere sticks at every speed scanned."""
+        return ~np.isfinite(self.reference_speed)
+
+    @property
+    def reference_table(self) -> np.ndarray:
+        """What is interpolated for the reference speed (module docstring): in capture mode
+        ``(v_c cos(angle))^(-1/4)``, 0 on stick rows; else the reference speed."""
+        if self.speed_axis != "capture_ratio":
+            return np.asarray(self.reference_speed, dtype=float)
+        cos = np.cos(np.radians(self.angle_deg))[None, :, None]
+        normal = self.reference_speed * cos
+        with np.errstate(divide="ignore"):
+            return np.where(np.isfinite(normal), normal ** (-0.25), 0.0)
+
+    @property
+    def u_top(self) -> np.ndarray:
+        """``top_ratio`` in the speed coordinate ``u`` (what the C function interpolates)."""
+        return self.u_of(self.top_ratio)
 
     # ----- derived, for reading -----
     @property
@@ -118,12 +171,15 @@ class WallLaw:
     # ----- interpolation (the generated C function does the same arithmetic) -----
     def reference_at(self, idx, w, angle):
         """The reference speed at interpolation cells ``idx`` with weights ``w``: capture
-        mode interpolates the normal capture speed ``v_c cos(angle)``, which changes slowly
-        with the angle (``v_c`` itself grows like ``1 / cos``), and divides by ``cos``."""
+        mode interpolates ``g = (v_c cos(angle))^(-1/4)`` (the normal capture speed changes
+        slowly with the angle; ``v_c`` itself grows like ``1 / cos``) and inverts it; ``inf``
+        where ``g`` is 0 (a stick row's cell: captured at every speed)."""
         if self.speed_axis != "capture_ratio":
             return _multilinear(self.reference_speed, idx, w)
-        cos_nodes = np.cos(np.radians(self.angle_deg))[None, :, None]
-        normal = _multilinear(self.reference_speed * cos_nodes, idx, w)
+        g = _multilinear(self.reference_table, idx, w)
+        g2 = g * g
+        with np.errstate(divide="ignore"):
+            normal = np.where(g > 0, 1.0 / np.where(g > 0, g2 * g2, 1.0), np.inf)
         return normal / np.cos(np.radians(angle))
 
     def u_of(self, x):
@@ -166,8 +222,18 @@ class WallLaw:
         v_ref = self.reference_at((ir, ia, iw), (wr, wa, ww), angle)
         captured = (speed < v_ref) if self.speed_axis == "capture_ratio" else speed < 0
         x = speed / v_ref
-        ix, wx, c = _cell(self.u_of(self.speed_ratio), self.u_of(x))
+        u_nodes = self.u_of(self.speed_ratio)
+        u = self.u_of(x)
+        ix, wx, c = _cell(u_nodes, u)
         clamped |= c & ~captured
+        # above the row's valid top: captured where the rows stick again there, else the
+        # row's last values (the speed range's top); flagged as clamped either way
+        u_top = _multilinear(self.u_top, (ir, ia, iw), (wr, wa, ww))
+        again = _multilinear(self.captured_above_top, (ir, ia, iw), (wr, wa, ww))
+        slack = 1e-9 * max(1.0, float(u_nodes[-1] - u_nodes[0]))
+        above = (u > u_top + slack) & ~captured
+        clamped |= above
+        captured |= above & (again >= 0.5)
         out = {}
         for name in OUTPUTS:
             out[name] = _multilinear(getattr(self, name), (ir, ia, iw, ix), (wr, wa, ww, wx))
@@ -264,13 +330,16 @@ def wall_law(
     max_draws: int = 20,
     refine: bool = True,
     refine_tol: float = 2e-4,
+    capture_tol: float = 1e-3,
     progress=None,
 ) -> WallLaw:
     """Tabulate the wall law of ``scene`` (module docstring).
 
     **Arguments:**
     - `scene`: a `Scene` (scalar parameters).
-    - `radius`: radii (m); default the scene's.
+    - `radius`: radii (m); default the scene's. With two or more (and `refine`), the first
+      and last bound the table's range and nodes are added between them where the capture
+      speed or the outputs need them (module docstring).
     - `angle_deg`: incidence angles (deg, in [0, 90)); default :data:`DEFAULT_ANGLES`.
     - `omega0`: spins (rad/s); default 0 only (CFD parcels rarely carry spin).
     - `speed_ratio`: speeds over the capture speed (>= 1; the node 1 is added), default
@@ -282,6 +351,8 @@ def wall_law(
     - `refine`: split the angle intervals where linear interpolation would miss by more than
       `refine_tol` in ``cor_n``, ``cor_t`` or ``omega_out r / speed`` (the onset of rolling
       puts a kink in them): a second pass on those angles only.
+    - `capture_tol`: with several radii, the largest relative error of the interpolated
+      capture speed at the midpoint (in log radius) of any two neighbouring radius nodes.
     - `progress`: a callable taking a one-line message, or None.
 
     **Returns:** a :class:`WallLaw`.
@@ -296,11 +367,21 @@ def wall_law(
     base, radius, angle, omega, x, adhesive = _grid_axes(
         scene, radius, angle_deg, omega0, speed_ratio
     )
+    if not (isinstance(capture_tol, float | int) and 0 < capture_tol < 1):
+        raise SceneError(f"capture_tol must be in (0, 1), got {capture_tol!r}")
     ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
+    report = {}
+    if refine and adhesive and radius.size >= 2:
+        radius, report = _radius_nodes(ctx, radius, angle, capture_tol, say)
+        ctx.radius = radius
     rows = ctx.angles(angle, batch=None, stage="pass 1 (the grid's angles)")
+    if refine and radius.size >= 3:
+        rows, radius = _refined_radii(ctx, rows, radius, angle, refine_tol, say)
+        ctx.radius = radius
     if refine and angle.size >= 3:
         rows, angle = _refined(ctx, rows, angle, refine_tol, say)
     law = _assembled(scene, rows, radius, angle, omega, x, adhesive)
+    law.radius_report = {**report, "not_converged": ctx.not_converged}
     impacts = ctx.impacts
     if draws is not None:
         law.uncertainty = _uncertainty(simulate, scene, law, draws, max_draws, say)
@@ -373,6 +454,7 @@ def _refined(ctx, rows, angle, tol, say):
 def _assembled(scene, rows, radius, angle, omega, x, adhesive) -> WallLaw:
     """The :class:`WallLaw` of the computed rows, reshaped to (radius, angle, spin[, speed])."""
     R, A, W, X = radius.size, angle.size, omega.size, x.size
+    rows = _filled_stick_rows(rows, R)
     return WallLaw(
         radius=radius,
         angle_deg=angle,
@@ -388,7 +470,30 @@ def _assembled(scene, rows, radius, angle, omega, x, adhesive) -> WallLaw:
         vt_ratio=rows["vt_ratio"].reshape(R, A, W, X),
         spin_ratio=rows["spin_ratio"].reshape(R, A, W, X),
         scene=scene_attributes(scene),
+        top_ratio=rows["top"].reshape(R, A, W),
+        captured_above_top=rows["again"].reshape(R, A, W),
     )
+
+
+def _filled_stick_rows(rows: dict, R: int) -> dict:
+    """Stick rows (captured at every speed) hold no results; a cell between one and a
+    rebounding radius interpolates them where the query is faster than the interpolated
+    capture speed, so they take the nearest rebounding radius's results (same angle and
+    spin): in the speed-ratio coordinate the results change slowly with radius."""
+    stick = ~np.isfinite(rows["v_ref"])  # (R, A*W)
+    if not stick.any():
+        return rows
+    rows = {k: v.copy() for k, v in rows.items()}
+    for j in range(stick.shape[1]):
+        live = np.flatnonzero(~stick[:, j])
+        for i in np.flatnonzero(stick[:, j]):
+            for name in OUTPUTS:
+                if live.size:
+                    near = live[np.argmin(np.abs(live - i))]
+                    rows[name][i, j] = rows[name][near, j]
+                else:
+                    rows[name][i, j] = 0.0
+    return rows
 
 
 class _Context:
@@ -399,18 +504,29 @@ class _Context:
         self.simulate, self.scene, self.base = simulate, scene, base
         self.radius, self.omega, self.x, self.adhesive, self.say = radius, omega, x, adhesive, say
         self.batch = None
+        self.capture_batch = None
         self.impacts = 0
+        self.not_converged = 0  # capture speeds of table rows taken as the root find left them
         self.label = ""  # which pass and batch the progress lines are about
 
-    def angles(self, angle, batch=None, stage="") -> dict:
-        """Rows for ``angle``: arrays ``(R, A, W[, X])`` flattened to ``(R, A*W[, X])``;
-        ``stage``: named in the progress lines (with the batch, where there are several)."""
-        R, A, W = self.radius.size, angle.size, self.omega.size
-        r = np.broadcast_to(self.radius[:, None, None], (R, A, W)).reshape(-1)
+    def _flat(self, radius, angle):
+        R, A, W = radius.size, angle.size, self.omega.size
+        r = np.broadcast_to(radius[:, None, None], (R, A, W)).reshape(-1)
         a = np.broadcast_to(angle[None, :, None], (R, A, W)).reshape(-1)
         w = np.broadcast_to(self.omega[None, None, :], (R, A, W)).reshape(-1)
+        return r, a, w
+
+    def angles(self, angle, batch=None, stage="", radius=None) -> dict:
+        """Rows for ``angle`` (and ``radius``, default the context's): arrays ``(R, A, W[,
+        X])`` flattened to ``(R, A*W[, X])``; ``stage``: named in the progress lines (with
+        the batch, where there are several)."""
+        radius = self.radius if radius is None else np.asarray(radius, dtype=float)
+        R, A, W = radius.size, angle.size, self.omega.size
+        r, a, w = self._flat(radius, angle)
         n = r.size
-        batch = batch or n
+        if self.batch is None and radius.size > 1:
+            self.lane_batch(A * W)
+        batch = batch or self.batch or n
         if self.batch is None:
             self.batch = batch
         parts = []
@@ -425,53 +541,89 @@ class _Context:
         rows = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         return {k: v.reshape((R, A * W) + v.shape[1:]) for k, v in rows.items()}
 
+    def lane_batch(self, lanes_per_radius: int) -> int:
+        """The lane count of every batch (one compiled program): :data:`RADII_PER_BATCH`
+        radii of the first pass's angles and spins, set on first use."""
+        if self.batch is None:
+            self.batch = self.capture_batch = RADII_PER_BATCH * lanes_per_radius
+        return self.batch
+
+    def capture_speeds(self, radius, angle, unsure_as_nan=False) -> np.ndarray:
+        """Capture speeds ``(R, A, W)`` (``inf`` where the sphere sticks at every speed) in
+        batches of one lane count (one compiled program for every call); with
+        ``unsure_as_nan``, NaN where the root find did not converge (else an error)."""
+        r, a, w = self._flat(radius, angle)
+        n = r.size
+        batch = self.lane_batch(angle.size * self.omega.size)
+        out = []
+        for lo in range(0, n, batch):
+            idx = np.arange(lo, min(lo + batch, n))
+            pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
+            out.append(self._capture(r[pad], a[pad], w[pad], unsure_as_nan)[0][: idx.size])
+        return np.concatenate(out).reshape(radius.size, angle.size, self.omega.size)
+
+    def _capture(self, r, a, w, unsure_as_nan=False):
+        """Capture speeds and statuses of lanes (``inf`` where all captured; where the root
+        find did not converge, its best estimate, counted in ``not_converged``, or NaN with
+        ``unsure_as_nan``)."""
+        n = r.size
+        params = {k: np.full(n, v) for k, v in self.base.items()}
+        params["radius"] = r
+        cap = capture_speed(scene_with(self.scene, params), a, w)
+        v_c = np.asarray(cap.speed, dtype=float)
+        c_status = np.asarray(cap.status)
+        self.impacts += cap.evaluations * n
+        ok = (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE, CaptureStatus.ALL_CAPTURED)
+        unsure = c_status == CaptureStatus.NOT_CONVERGED
+        bad = ~np.isin(c_status, ok) & ~unsure
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise WallLawError(
+                f"{int(bad.sum())} of {n} capture speeds could not be found, e.g. radius "
+                f"{r[i]:g} m, angle {a[i]:g} deg, spin {w[i]:g} rad/s: "
+                f"{CaptureStatus.NAMES[int(c_status[i])]}"
+            )
+        v_c = np.where(c_status == CaptureStatus.ALL_CAPTURED, np.inf, v_c)
+        if unsure_as_nan:
+            return np.where(unsure, np.nan, v_c), c_status
+        self.not_converged += int(unsure.sum())
+        return v_c, c_status
+
     def _lanes(self, r, a, w) -> dict:
         n, x = r.size, self.x
+        X = x.size
         params = {k: np.full(n, v) for k, v in self.base.items()}
         params["radius"] = r
         lane_scene = scene_with(self.scene, params)
         if self.adhesive:
             self.say(f"{self.label}capture speeds of {n} (radius, angle, spin) lanes")
-            cap = capture_speed(lane_scene, a, w)
-            v_c = np.asarray(cap.speed, dtype=float)
-            c_status = np.asarray(cap.status)
-            self.impacts += cap.evaluations * n
-            bad = ~np.isin(c_status, (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE))
-            if bad.any():
-                i = int(np.flatnonzero(bad)[0])
-                raise WallLawError(
-                    f"{int(bad.sum())} of {n} capture speeds could not be found, e.g. radius "
-                    f"{r[i]:g} m, angle {a[i]:g} deg, spin {w[i]:g} rad/s: "
-                    f"{CaptureStatus.NAMES[int(c_status[i])]}"
-                )
+            v_c, c_status = self._capture(r, a, w)
             v_ref = v_c
-            top = float(np.max(v_ref) * x[-1])
-            if top > SPEED_MAX:
-                raise SceneError(
-                    f"speed_ratio: the table would reach {top:.4g} m/s (largest ratio "
-                    f"{x[-1]:g} times the largest capture speed {np.max(v_ref):.4g} m/s), "
-                    f"above the speed range's {SPEED_MAX:g} m/s; lower the largest ratio or "
-                    "angle"
-                )
         else:
             v_c = np.zeros(n)
             c_status = np.full(n, CaptureStatus.NO_ADHESION)
             v_ref = np.ones(n)
-        X = x.size
+        stick = ~np.isfinite(v_ref)
         speed = v_ref[:, None] * x[None, :]
+        # Cells not simulated: stick rows and speeds above the speed range. They are run at
+        # a harmless speed (the batch keeps its shape: one compiled program) and discarded.
+        skip = stick[:, None] | ~(speed <= SPEED_MAX)
+        first = 1 if self.adhesive else 0
+        harmless = np.where(stick, 1.0, v_ref * x[min(first, X - 1)])
+        run_speed = np.where(skip, harmless[:, None], speed)
         status = np.zeros((n, X), int)
         out = {k: np.full((n, X), np.nan) for k in OUTPUTS}
         self.say(f"{self.label}{n * X} impacts ({n} lanes x {X} speeds)")
-        first = 1 if self.adhesive else 0
         for k in range(first, X):  # one batch shape: one compiled program with the capture's
-            res = self.simulate(lane_scene, speed[:, k], a, w)
+            s = run_speed[:, k]
+            res = self.simulate(lane_scene, s, a, w)
             status[:, k] = np.asarray(res.status)
-            s = speed[:, k]
             out["cor_n"][:, k] = np.asarray(res.cor_n)
             out["vt_ratio"][:, k] = np.asarray(res.vt_out) / s
             out["spin_ratio"][:, k] = np.asarray(res.omega_out) * r / s
             self.impacts += n
-        failed = status >= 2
+        status = np.where(skip, NOT_SIMULATED, status)
+        failed = (status >= 2) & ~skip
         if failed.any():
             i, k = (int(j[0]) for j in np.nonzero(failed))
             raise WallLawError(
@@ -479,15 +631,20 @@ class _Context:
                 f"{speed[i, k]:.6g} m/s, angle {a[i]:g} deg, spin {w[i]:g} rad/s, radius "
                 f"{r[i]:g} m"
             )
-        captured = status[:, first:] == 1
-        if captured.any():
-            i, k = (int(j[0]) for j in np.nonzero(captured))
-            raise WallLawError(
-                f"{int(captured.sum())} impacts above the capture speed were captured "
-                f"(capture is not one threshold there: the sphere sticks again at a higher speed), "
-                f"e.g. speed ratio {x[k + first]:g} ({speed[i, k + first]:.4g} m/s), angle "
-                f"{a[i]:g} deg, spin {w[i]:g} rad/s; keep the largest speed ratio below it"
-            )
+        # The row's top: its last node before the first that is not a rebound (captured
+        # again, or above the speed range); the nodes above it repeat the top's results.
+        bad = np.zeros((n, X), bool)
+        bad[:, first:] = status[:, first:] != 0
+        first_bad = np.argmax(bad, axis=1)
+        top = np.where(bad.any(axis=1), first_bad - 1, X - 1)
+        top = np.where(stick, X - 1, np.maximum(top, 0))
+        # captured again above the top (not only cut by the speed range): sticks there
+        again = bad.any(axis=1) & ~stick & (status[np.arange(n), first_bad] == 1)
+        for name in OUTPUTS:
+            col = out[name]
+            held = np.take_along_axis(col, top[:, None], axis=1)
+            col[:] = np.where(np.arange(X)[None, :] > top[:, None], held, col)
+            col[stick] = np.nan  # filled from the nearest rebounding radius (_assembled)
         if self.adhesive:  # the node at the capture speed itself (module docstring)
             u = np.arcsinh(np.sqrt(x - 1.0))
             t = (u[0] - u[1]) / (u[2] - u[1])
@@ -501,8 +658,121 @@ class _Context:
             "v_ref": v_ref,
             "speed": speed,
             "status": status,
+            "top": x[top],
+            "again": again.astype(float),
             **out,
         }
+
+
+def _radius_nodes(ctx, radius, angle, tol, say):
+    """Radius nodes between the given ones (bisection in ``log r``) until the capture speed
+    at every interval's midpoint is within ``tol`` of its interpolation (module docstring),
+    on the grid's first-pass angles. Intervals narrower than :data:`RADIUS_MIN_STEP` in ``log
+    r`` are left as they are and reported. Returns ``(radius nodes, report)``."""
+    nodes = list(np.asarray(radius, dtype=float))
+    say(f"radius nodes: capture speeds at {len(nodes)} radii")
+    v_nodes = ctx.capture_speeds(np.asarray(nodes), angle)  # sets the batch of every pass
+    g = {r: _g(v, angle) for r, v in zip(nodes, v_nodes, strict=True)}
+    pending = list(zip(nodes[:-1], nodes[1:], strict=True))
+    unresolved, checked = [], 0
+    for level in range(RADIUS_LEVELS):
+        if not pending:
+            break
+        mids = np.sqrt(np.array([lo * hi for lo, hi in pending]))
+        say(f"radius nodes, level {level + 1}: checking {mids.size} midpoints")
+        v_mid = ctx.capture_speeds(mids, angle, unsure_as_nan=True)
+        checked += mids.size
+        split = []
+        for (lo, hi), m, vm in zip(pending, mids, v_mid, strict=True):
+            g_mid = _g(vm, angle)
+            w = (np.log(m) - np.log(lo)) / (np.log(hi) - np.log(lo))
+            miss = _g_miss(g[lo] + w * (g[hi] - g[lo]), g_mid)
+            if miss <= tol:
+                continue
+            if np.log(hi / lo) < 2 * RADIUS_MIN_STEP or np.isnan(vm).any():
+                # (a midpoint whose capture speed was not found is not made a node)
+                unresolved.append((float(lo), float(hi), float(miss)))
+                continue
+            g[m] = g_mid
+            nodes.append(float(m))
+            split += [(lo, m), (m, hi)]
+        pending = split
+    unresolved += [(float(lo), float(hi), math.nan) for lo, hi in pending]
+    nodes = np.array(sorted(nodes))
+    if unresolved:
+        say(f"radius nodes: {len(unresolved)} intervals left wider than the tolerance needs")
+    report = {"checked_midpoints": checked, "unresolved": unresolved, "capture_tol": tol}
+    return nodes, report
+
+
+def _g(v_c, angle):
+    """The interpolated coordinate of capture speeds ``v_c (A, W)`` (module docstring)."""
+    normal = v_c * np.cos(np.radians(angle))[:, None]
+    with np.errstate(divide="ignore"):
+        return np.where(np.isfinite(normal), normal ** (-0.25), 0.0)
+
+
+def _g_miss(g_interp, g_true) -> float:
+    """The largest relative error of the capture speed from ``g_interp`` against
+    ``g_true`` (``inf`` where one says stick and the other does not)."""
+    both_stick = (g_interp <= 0) & (g_true <= 0)
+    one_stick = (g_interp <= 0) ^ (g_true <= 0)
+    if np.isnan(g_true).any():
+        return math.nan
+    if one_stick.any():
+        return math.inf
+    ok = ~both_stick
+    if not ok.any():
+        return 0.0
+    return float(np.max(np.abs((g_true[ok] / g_interp[ok]) ** 4 - 1.0)))
+
+
+def _refined_radii(ctx, rows, radius, angle, tol, say):
+    """Split the radius intervals (``log r``) where linear interpolation of the results would
+    miss by more than ``tol`` (second differences, as for the angles; stick rows and their
+    neighbours left out); the rows and radii merged and sorted by radius."""
+    extra = _radius_refinement(rows, radius, angle, tol, 1 if ctx.adhesive else 0)
+    if not extra.size:
+        return rows, radius
+    say(f"refining: {extra.size} more radii where the results bend sharply")
+    more = ctx.angles(angle, batch=ctx.batch, stage="pass 1b (refined radii)", radius=extra)
+    rows = {k: np.concatenate([rows[k], more[k]], axis=0) for k in rows}
+    radius = np.concatenate([radius, extra])
+    order = np.argsort(radius)
+    return {k: v[order] for k, v in rows.items()}, radius[order]
+
+
+def _radius_refinement(rows: dict, radius, angle, tol: float, first: int) -> np.ndarray:
+    """New radii splitting the intervals (in ``log r``) where linear interpolation of
+    ``cor_n``, ``cor_t`` or ``spin_ratio`` would miss by more than ``tol`` (see
+    :func:`_refinement`; ``first``: the first simulated speed node)."""
+    R = radius.size
+    A = angle.size
+    live = np.isfinite(rows["v_ref"]).all(axis=1)  # radii with a rebound at every lane
+    sin = np.sin(np.radians(angle))
+    lr = np.log(radius)
+    h = np.diff(lr)
+    miss = np.zeros(R - 1)
+    X = rows["cor_n"].shape[-1]
+    # only simulated rebounds: not the capture node, not the nodes above a row's top
+    with np.errstate(invalid="ignore"):  # (stick rows: inf / inf; left out as not live)
+        x = rows["speed"] / rows["v_ref"][..., None]
+    held = (x > rows["top"][..., None] * (1 + 1e-12)) | (np.arange(X) < first)
+    for name in ("cor_n", "vt_ratio", "spin_ratio"):
+        f = np.where(held, np.nan, rows[name]).reshape(R, A, -1)
+        if name == "vt_ratio":
+            f = f / np.where(sin > 0, sin, np.inf)[None, :, None]
+        h0, h1 = h[:-1], h[1:]
+        w0 = (h1 / (h0 + h1))[:, None, None]
+        w1 = (h0 / (h0 + h1))[:, None, None]
+        d2 = np.abs(w0 * f[:-2] + w1 * f[2:] - f[1:-1])
+        d2 = np.max(np.nan_to_num(d2, nan=0.0), axis=(1, 2))
+        d2 = np.where(live[:-2] & live[1:-1] & live[2:], d2, 0.0)
+        node = np.concatenate([[0.0], d2, [0.0]])
+        miss = np.maximum(miss, np.maximum(node[:-1], node[1:]) / 2.0)
+    parts = np.minimum(np.ceil(miss / tol), 4).astype(int)
+    new = [np.exp(lr[j] + h[j] * np.arange(1, m) / m) for j, m in enumerate(parts) if m > 1]
+    return np.concatenate(new) if new else np.array([])
 
 
 def _refinement(rows: dict, angle, tol: float) -> np.ndarray:
@@ -534,7 +804,7 @@ def _refinement(rows: dict, angle, tol: float) -> np.ndarray:
         w0 = (h1 / (h0 + h1)).reshape(shape)
         w1 = (h0 / (h0 + h1)).reshape(shape)
         d2 = np.abs(w0 * left + w1 * right - mid)  # the node's miss by its neighbours' line
-        d2 = np.nan_to_num(np.max(d2, axis=(0, 2, 3)), nan=0.0)
+        d2 = np.max(np.nan_to_num(d2, nan=0.0), axis=(0, 2, 3))  # (stick rows: NaN)
         node = np.concatenate([[0.0], d2, [0.0]])
         miss = np.maximum(miss, np.maximum(node[:-1], node[1:]) / 2.0)
     parts = np.minimum(np.ceil(miss / tol), 8).astype(int)

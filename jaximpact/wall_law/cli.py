@@ -13,7 +13,10 @@ grids: --angle and --spin take one SPEC each, --speed one SPEC, --radius one or 
     START:STOP:NUM           NUM values, linear     --angle 0:85:171  (ends included)
     START:STOP:NUM:log       NUM values, geometric  --speed 1.001:200:40:log
   --angle: degrees from the normal, in [0, 89.9] (a negative tangential speed is mirrored);
-  --spin: rad/s (default 0: CFD parcels rarely carry spin); --radius: m (default the scene's);
+  --spin: rad/s (default 0: CFD parcels rarely carry spin); --radius: m (default the scene's;
+  two or more: nodes are added between them until the capture speed at every interval's
+  midpoint is within --capture-tol of the table's, and where the results bend; radii that
+  stick at every speed become stick rows, and the jump to them is located to 0.2 %);
   --speed: the speed over the capture speed (>= 1; the node 1 is added) for a scene with
   adhesion, the speed in m/s for one without. Defaults: angles 0 to 85 every 0.5 deg, then
   the intervals where the table bends sharply (the onset of rolling) split to 1/16 deg
@@ -76,6 +79,8 @@ def cmd_wall_law(args) -> int:
     speed = _values("--speed", args.speed, "speed") if args.speed else None
     if args.max_draws < 1:
         raise SceneError(f"--max-draws must be an integer >= 1, got {args.max_draws}")
+    if not 0 < args.capture_tol < 1:
+        raise SceneError(f"--capture-tol must be in (0, 1), got {args.capture_tol}")
     if args.check < 0:
         raise SceneError(f"--check must be an integer >= 0, got {args.check}")
     draws = read_draws(args.draws) if args.draws else None
@@ -108,6 +113,7 @@ def cmd_wall_law(args) -> int:
             draws=draws,
             max_draws=args.max_draws,
             refine=not args.no_refine,
+            capture_tol=args.capture_tol,
             progress=progress,
         )
     except (WallLawError, SceneError) as err:
@@ -132,6 +138,7 @@ def _report(law, scene, scene_name, check) -> None:
     import numpy as np
 
     from ._check import compare_with_simulate, random_points
+    from ._table import SPEED_MAX
 
     R, A, W, X = law.shape
     print(f"scene: {scene_name}")
@@ -140,8 +147,44 @@ def _report(law, scene, scene_name, check) -> None:
         f"{law.impacts} impacts simulated in {law.seconds:.1f} s"
     )
     if law.speed_axis == "capture_ratio":
-        vc = law.capture_speed
-        print(f"capture speed: {vc.min():.6g} to {vc.max():.6g} m/s")
+        vc = law.capture_speed[np.isfinite(law.capture_speed)]
+        if vc.size:
+            print(f"capture speed: {vc.min():.6g} to {vc.max():.6g} m/s")
+        stick = law.stick.all(axis=(1, 2))
+        if stick.any():
+            print(
+                f"sticks at every speed (stick rows): {int(law.stick.sum())} of "
+                f"{law.stick.size} (radius, angle, spin) rows, radii up to "
+                f"{law.radius[np.flatnonzero(law.stick.any(axis=(1, 2)))[-1]]:.6g} m"
+            )
+        report = law.radius_report
+        if "checked_midpoints" in report:
+            print(
+                f"radius nodes: {R}, {report['checked_midpoints']} midpoints checked "
+                f"(capture speed within {report['capture_tol']:g})"
+            )
+            bands = report["unresolved"]
+            if bands:
+                widest = max(hi / lo - 1 for lo, hi, _ in bands)
+                print(
+                    f"  {len(bands)} radius intervals not resolved to that (the jump to the "
+                    f"stick rows, or a capture speed not found), the widest {widest:.2%} of "
+                    "the radius"
+                )
+        if report.get("not_converged"):
+            print(
+                f"warning: {report['not_converged']} capture speeds of table rows are the "
+                "root find's best estimate (not converged)",
+                file=sys.stderr,
+            )
+        above = int(np.sum(law.top_ratio < law.speed_ratio[-1]))
+        if above:
+            again = int(np.sum(law.captured_above_top == 1))
+            print(
+                f"{above} rows end below the largest speed ratio: {again} stick again above "
+                f"their top (captured there), {above - again} reach the speed range's "
+                f"{SPEED_MAX:g} m/s (their last results, flagged as clamped)"
+            )
         multiple = int(np.sum(law.capture_status == 2))
         if multiple:
             print(
@@ -187,6 +230,13 @@ def add_wall_law_command(sub) -> None:
     p.add_argument("--draws", metavar="FILE.nc", help="posterior draws (fit --posterior --draws)")
     p.add_argument("--max-draws", type=int, default=20, help="draws used (default 20)")
     p.add_argument("--no-refine", action="store_true", help="no second pass on sharp bends")
+    p.add_argument(
+        "--capture-tol",
+        type=float,
+        default=1e-3,
+        metavar="TOL",
+        help="several radii: relative error of the capture speed between nodes (default 1e-3)",
+    )
     p.add_argument(
         "--check",
         type=int,
