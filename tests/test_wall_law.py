@@ -522,6 +522,7 @@ def wide_law(scene):
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(_table, "RADII_PER_BATCH", 1)
+        mp.setattr(_table, "MIN_BATCH_LANES", 1)
         return wall_law(
             scene, radius=WIDE, angle_deg=ANGLES, omega0=SPINS, speed_ratio=RATIOS,
             capture_tol=WIDE_TOL, refine_tol=1.0,

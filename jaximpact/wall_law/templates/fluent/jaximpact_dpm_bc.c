@@ -19,7 +19,8 @@
    combusting, multicomponent) are not what the table describes: their tracks are aborted
    (PATH_ABORT) and counted, unless JAXIMPACT_WL_ANY_TYPE is defined.
 
-   Impacts outside the table (radius, angle, speed or spin beyond its nodes) are counted per
+   Impacts outside the table (radius, angle, speed or spin beyond its nodes, or faster than
+   the top of their row: the speed range, or a second capture) are counted per
    wall; the first one on each wall is reported with Message(), and JAXIMPACT_WL_ON_CLAMP says
    what happens to them (below). A particle density more than 1 % from the table's is reported
    once. The DEFINE_ON_DEMAND function "jaximpact_wall_law_report" prints the counts per wall
