@@ -510,6 +510,7 @@ class _Context:
         self.capture_batch = None
         self.impacts = 0
         self.not_converged = 0  # capture speeds of table rows taken as the root find left them
+        self.known = {}  # (radius, angle, spin) -> (capture speed, status) already found
         self.label = ""  # which pass and batch the progress lines are about
 
     def _flat(self, radius, angle):
@@ -572,12 +573,19 @@ class _Context:
         find did not converge, its best estimate, counted in ``not_converged``, or NaN with
         ``unsure_as_nan``)."""
         n = r.size
-        params = {k: np.full(n, v) for k, v in self.base.items()}
-        params["radius"] = r
-        cap = capture_speed(scene_with(self.scene, params), a, w)
-        v_c = np.asarray(cap.speed, dtype=float)
-        c_status = np.asarray(cap.status)
-        self.impacts += cap.evaluations * n
+        keys = list(zip(r.tolist(), a.tolist(), w.tolist(), strict=True))
+        if all(k in self.known for k in keys):  # found by the radius pass already
+            v_c = np.array([self.known[k][0] for k in keys])
+            c_status = np.array([self.known[k][1] for k in keys])
+        else:
+            params = {k: np.full(n, v) for k, v in self.base.items()}
+            params["radius"] = r
+            cap = capture_speed(scene_with(self.scene, params), a, w)
+            v_c = np.asarray(cap.speed, dtype=float)
+            c_status = np.asarray(cap.status)
+            self.impacts += cap.evaluations * n
+            found = zip(v_c.tolist(), c_status.tolist(), strict=True)
+            self.known.update(zip(keys, found, strict=True))
         ok = (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE, CaptureStatus.ALL_CAPTURED)
         unsure = c_status == CaptureStatus.NOT_CONVERGED
         bad = ~np.isin(c_status, ok) & ~unsure
