@@ -591,6 +591,22 @@ def test_stick_rows_and_a_second_capture_against_simulate(wide_law, scene):
     assert np.all(np.asarray(res.status) == 1), np.asarray(res.status)
 
 
+def test_netcdf_says_what_tolerance_was_met_where(wide_law, tmp_path):
+    xr = pytest.importorskip("xarray")
+    law = wide_law
+    write_wall_law(law, tmp_path, "table1")
+    with xr.open_dataset(tmp_path / "wall_law.nc") as ds:
+        assert ds.attrs["radius_capture_tol"] == WIDE_TOL
+        assert ds.attrs["radius_midpoints_checked"] == law.radius_report["checked_midpoints"] > 0
+        bands = ds.attrs["radius_unresolved_intervals"].split("; ")
+        assert len(bands) == len(law.radius_report["unresolved"]) > 0
+        assert ds.attrs["refine_tol"].startswith("1 ")
+        np.testing.assert_array_equal(ds["top_ratio"].values, law.top_ratio)
+        np.testing.assert_array_equal(ds["captured_above_top"].values, law.captured_above_top)
+        assert np.isinf(ds["capture_speed"].values[0]).all()  # the stick rows
+        assert (ds["status"].values[0] == -1).all()  # not simulated
+
+
 def test_c_header_matches_python_across_radius_and_above_the_top(wide_law, tmp_path):
     law = wide_law
     evaluate = c_wall_law(compile_c(tmp_path, law, SHIM, "shim"))

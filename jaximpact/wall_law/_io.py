@@ -117,6 +117,24 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
         "posterior_draws": int(law.uncertainty.get("draws", 0)),
         "posterior_parameters": " ".join(law.uncertainty.get("parameters", [])),
     }
+    report = law.radius_report
+    attrs["refine_tol"] = (
+        "none (no refinement)"
+        if report.get("refine_tol") is None
+        else f"{report['refine_tol']:g} (angle and radius intervals split where linear "
+        "interpolation of cor_n, cor_t or omega_out r / speed would miss by more)"
+    )
+    if "capture_tol" in report:
+        attrs["radius_capture_tol"] = float(report["capture_tol"])
+        attrs["radius_midpoints_checked"] = int(report["checked_midpoints"])
+        attrs["radius_unresolved_intervals"] = (
+            "; ".join(
+                f"{lo:.6g}-{hi:.6g} m (capture speed off by {miss:.3g})"
+                for lo, hi, miss in report["unresolved"]
+            )
+            or "none"
+        )
+    attrs["capture_speeds_not_converged"] = int(report.get("not_converged", 0))
     attrs.update({f"scene.{k}": v for k, v in law.scene.items()})
     return xr.Dataset(data, coords=coords, attrs=attrs)
 

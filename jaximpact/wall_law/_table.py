@@ -147,24 +147,32 @@ class WallLaw:
         return self.u_of(self.top_ratio)
 
     # ----- derived, for reading -----
+    # (NaN in the cells that are not a rebound: captured above a row's top, not simulated)
+    def _rebounds(self, values) -> np.ndarray:
+        return np.where(self.status == 0, values, np.nan)
+
     @property
     def cor_t(self) -> np.ndarray:
         sin = np.sin(np.radians(self.angle_deg))[None, :, None, None]
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(sin > 0, self.vt_ratio / sin, np.nan)
+            return self._rebounds(np.where(sin > 0, self.vt_ratio / sin, np.nan))
 
     @property
     def vt_out(self) -> np.ndarray:
-        return self.vt_ratio * self.speed
+        with np.errstate(invalid="ignore"):
+            return self._rebounds(self.vt_ratio * self.speed)
 
     @property
     def omega_out(self) -> np.ndarray:
-        return self.spin_ratio * self.speed / self.radius[:, None, None, None]
+        with np.errstate(invalid="ignore"):
+            return self._rebounds(self.spin_ratio * self.speed / self.radius[:, None, None, None])
 
     @property
     def rebound_angle_deg(self) -> np.ndarray:
-        vn = self.cor_n * self.speed * np.cos(np.radians(self.angle_deg))[None, :, None, None]
-        out = np.degrees(np.arctan2(self.vt_out, vn))
+        cos = np.cos(np.radians(self.angle_deg))[None, :, None, None]
+        with np.errstate(invalid="ignore"):
+            vn = self.cor_n * self.speed * cos
+            out = np.degrees(np.arctan2(self.vt_out, vn))
         return np.where(self.cor_n > 0, out, np.nan)
 
     @property
@@ -384,7 +392,9 @@ def wall_law(
     if refine and angle.size >= 3:
         rows, angle = _refined(ctx, rows, angle, refine_tol, say)
     law = _assembled(scene, rows, radius, angle, omega, x, adhesive)
-    law.radius_report = {**report, "not_converged": ctx.not_converged}
+    law.radius_report = {**report, "not_converged": ctx.not_converged, "refine_tol": refine_tol}
+    if not refine:
+        law.radius_report["refine_tol"] = None
     impacts = ctx.impacts
     if draws is not None:
         law.uncertainty = _uncertainty(simulate, scene, law, draws, max_draws, say)
