@@ -857,6 +857,10 @@ def _uncertainty(simulate, scene, law, draws, max_draws, say) -> dict:
     om = np.broadcast_to(law.omega0[None, None, :], (R, A, W)).reshape(-1)
     base = {k: float(v) for k, v in scene_parameters(scene).items()}
     speed = law.speed.reshape(n, X)
+    # cells not simulated for the table (stick rows, above the speed range): not for the
+    # draws either (run at a harmless speed, left NaN)
+    skip = law.status.reshape(n, X) == NOT_SIMULATED
+    speed = np.where(skip, 1.0, speed)
     captured = np.zeros((pick.size, n, X), bool)
     cor_n = np.full((pick.size, n, X), np.nan)
     say(f"{pick.size} posterior draws x {n * X} impacts")
@@ -869,14 +873,15 @@ def _uncertainty(simulate, scene, law, draws, max_draws, say) -> dict:
         for k in range(X):
             res = simulate(s, speed[:, k], ang, om)
             st = np.asarray(res.status)
-            if np.any(st >= 2):
-                raise WallLawError(f"draw {int(j)}: {int(np.sum(st >= 2))} impacts failed")
+            failed = (st >= 2) & ~skip[:, k]
+            if np.any(failed):
+                raise WallLawError(f"draw {int(j)}: {int(np.sum(failed))} impacts failed")
             captured[d, :, k] = st == 1
-            cor_n[d, :, k] = np.where(st == 0, np.asarray(res.cor_n), np.nan)
+            cor_n[d, :, k] = np.where((st == 0) & ~skip[:, k], np.asarray(res.cor_n), np.nan)
     shape4 = law.shape
     with np.errstate(invalid="ignore"), _quiet():
         stats = {
-            "capture_probability": captured.mean(axis=0),
+            "capture_probability": np.where(skip, np.nan, captured.mean(axis=0)),
             "cor_n_mean": np.nanmean(cor_n, axis=0),
             "cor_n_sd": np.nanstd(cor_n, axis=0),
             "cor_n_q05": np.nanquantile(cor_n, 0.05, axis=0),
