@@ -189,7 +189,8 @@ def _report(law, scene, scene_name, check) -> None:
         if multiple:
             print(
                 f"warning: at {multiple} (radius, angle, spin) capture is not one threshold; "
-                "the table sticks below the highest captured band (capture_status 'multiple')",
+                "the table sticks below the capture speed, and above a row's top where it "
+                "sticks again (capture_status 'multiple')",
                 file=sys.stderr,
             )
     else:
