@@ -157,29 +157,6 @@ def test_vmap_equals_loop_with_mixed_statuses(table1):
             np.testing.assert_allclose(getattr(batch, name)[i], getattr(one, name), rtol=1e-6)
 
 
-def test_normal_impacts_same_bits_without_and_with_the_tangential_states(table1):
-    """A batch of normal impacts without spin is solved without the tangential states, one
-    beside spinning impacts with them: the same bits either way (float64: XLA's emitters that
-    do not contract multiply-adds, ``jaximpact._engine.devices.NO_CONTRACTION``; with
-    contraction 39 of 350 such impacts differed, by up to 1.1e-11 in cor_n). Near the capture
-    speed, where a last-bit difference grows most."""
-    params = ji.scene_parameters(table1)
-    speed = 0.0934236397087712 * np.geomspace(0.98, 3.0, 24)  # Table 1: v_c 0.0934 m/s
-    rng = np.random.default_rng(3)
-    others = (rng.uniform(0.1, 3.0, 8), rng.uniform(-60, 60, 8), rng.uniform(-1e4, 1e4, 8))
-    angle = np.concatenate([np.zeros(24), others[1]])
-    omega0 = np.concatenate([np.zeros(24), others[2]])
-    assert not ji.required_terms(table1, params, np.zeros(24), np.zeros(24)).tangential
-    assert ji.required_terms(table1, params, angle, omega0).tangential
-    alone = ji.simulate(table1, speed, 0.0, 0.0)
-    mixed = ji.simulate(table1, np.concatenate([speed, others[0]]), angle, omega0)
-    assert 0 < np.sum(np.asarray(alone.status) == Status.CAPTURED) < 24
-    for name in ("status", "steps", "cor_n", "vn_out", "contact_time", "max_overlap"):
-        np.testing.assert_array_equal(
-            np.asarray(getattr(mixed, name))[:24], np.asarray(getattr(alone, name)), err_msg=name
-        )
-
-
 def test_forced_failure_is_reported_not_silent(table1):
     scene = table1.replace(solver={"max_steps": 16})
     res = ji.simulate(scene, jnp.array([1.66, 1.0]), jnp.array([40.0, 0.0]), 1e4)
@@ -422,6 +399,4 @@ def test_invalid_traced_inputs_get_their_own_status_and_nan():
     assert np.all(np.isnan(np.asarray(r.cor_n)[bad]))
     assert np.all(status[~bad] == ji.Status.REBOUND)
     good = ji.simulate(scene.replace(contact={"f0": 300.0}), speed[~bad], angle[~bad], 0.0)
-    # (a program compiled by the user's jit gets XLA's defaults, simulate's own its options:
-    # they agree to the solver's tolerance, rtol 1e-10, not bit for bit; docs/engine.md)
-    np.testing.assert_allclose(np.asarray(r.cor_n)[~bad], np.asarray(good.cor_n), rtol=1e-8)
+    np.testing.assert_allclose(np.asarray(r.cor_n)[~bad], np.asarray(good.cor_n), rtol=1e-12)

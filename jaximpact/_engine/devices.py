@@ -90,29 +90,17 @@ UNFUSED = {"xla_disable_hlo_passes": "fusion"}
 # pads every chunk to 512 bits), and 512-bit vectors ran 20,000 float64 impacts on 2 cores
 # about 1.4-2.2x faster (BENCHMARKS.md, "Loop kernels"). A CPU without them keeps its width.
 WIDE_VECTORS = {"xla_cpu_prefer_vector_width": 512}
-# XLA:CPU's fusion emitters (MLIR) contract a multiply and an add into one FMA where each
-# program's own fusion puts them: two programs that compute a lane the same way (a normal
-# impact solved with and without the tangential states) then differ in the last bits (39 of
-# 350 near-capture normal impacts, up to 1.1e-11 in cor_n, 7 in their step counts). XLA's
-# older emitters do not contract, and with them the two agree bit for bit (so do programs
-# without fusion: the throughput program with loop kernels). Used in float64, where they ran
-# at the same rate and compiled 1.5 s faster (20,000 impacts, one device); in float32 they
-# ran at 0.66x, so float32 keeps the fusion emitters (docs/open_points.md).
-NO_CONTRACTION = {"xla_cpu_use_fusion_emitters": False}
 
 
 def compiler_options(throughput: bool = False) -> dict:
     """XLA options for the engine's compiled programs in this process: 512-bit vectors on a
-    CPU, in float64 XLA's emitters that do not contract multiply-adds (:data:`NO_CONTRACTION`);
-    with loop kernels, a ``throughput`` program (unrolled stages, values only) also without
-    fusion. Call it where the program is built (it starts JAX's backend)."""
+    CPU; with loop kernels, a ``throughput`` program (unrolled stages, values only) also
+    without fusion. Call it where the program is built (it starts JAX's backend)."""
     import jax
 
     if jax.default_backend() != "cpu":
         return {}
     options = dict(WIDE_VECTORS)
-    if jax.config.jax_enable_x64:
-        options.update(NO_CONTRACTION)
     if throughput and loop_kernels():
         options.update(UNFUSED)
     return options
