@@ -517,7 +517,6 @@ class _Context:
         self.simulate, self.scene, self.base = simulate, scene, base
         self.radius, self.omega, self.x, self.adhesive, self.say = radius, omega, x, adhesive, say
         self.batch = None
-        self.capture_batch = None
         self.impacts = 0
         self.not_converged = 0  # capture speeds of table rows taken as the root find left them
         self.known = {}  # (radius, angle, spin) -> (capture speed, status) already found
@@ -561,7 +560,7 @@ class _Context:
         first use."""
         if self.batch is None:
             radii = max(RADII_PER_BATCH, -(-MIN_BATCH_LANES // lanes_per_radius))
-            self.batch = self.capture_batch = radii * lanes_per_radius
+            self.batch = radii * lanes_per_radius
         return self.batch
 
     def capture_speeds(self, radius, angle, unsure_as_nan=False) -> np.ndarray:
@@ -769,33 +768,20 @@ def _radius_refinement(rows: dict, radius, angle, tol: float, first: int) -> np.
     """New radii splitting the intervals (in ``log r``) where linear interpolation of
     ``cor_n``, ``cor_t`` or ``spin_ratio`` would miss by more than ``tol`` (see
     :func:`_refinement`; ``first``: the first simulated speed node)."""
-    R = radius.size
-    A = angle.size
+    R, A = radius.size, angle.size
     live = np.isfinite(rows["v_ref"]).all(axis=1)  # radii with a rebound at every lane
-    sin = np.sin(np.radians(angle))
-    lr = np.log(radius)
-    h = np.diff(lr)
-    miss = np.zeros(R - 1)
     X = rows["cor_n"].shape[-1]
-    # only simulated rebounds: not the capture node, not the nodes above a row's top
+    # only simulated rebounds: not the capture node, not the nodes above a row's top, and no
+    # radius with a stick row
     with np.errstate(invalid="ignore"):  # (stick rows: inf / inf; left out as not live)
         x = rows["speed"] / rows["v_ref"][..., None]
     held = (x > rows["top"][..., None] * (1 + 1e-12)) | (np.arange(X) < first)
-    for name in ("cor_n", "vt_ratio", "spin_ratio"):
-        f = np.where(held, np.nan, rows[name]).reshape(R, A, -1)
-        if name == "vt_ratio":
-            f = f / np.where(sin > 0, sin, np.inf)[None, :, None]
-        h0, h1 = h[:-1], h[1:]
-        w0 = (h1 / (h0 + h1))[:, None, None]
-        w1 = (h0 / (h0 + h1))[:, None, None]
-        d2 = np.abs(w0 * f[:-2] + w1 * f[2:] - f[1:-1])
-        d2 = np.max(np.nan_to_num(d2, nan=0.0), axis=(1, 2))
-        d2 = np.where(live[:-2] & live[1:-1] & live[2:], d2, 0.0)
-        node = np.concatenate([[0.0], d2, [0.0]])
-        miss = np.maximum(miss, np.maximum(node[:-1], node[1:]) / 2.0)
-    parts = np.minimum(np.ceil(miss / tol), 4).astype(int)
-    new = [np.exp(lr[j] + h[j] * np.arange(1, m) / m) for j, m in enumerate(parts) if m > 1]
-    return np.concatenate(new) if new else np.array([])
+    held |= ~live[:, None, None]
+    lr = np.log(radius)
+    miss = np.zeros(R - 1)
+    for f in _results(rows, angle, held):
+        miss = np.maximum(miss, _interval_miss(f.reshape(R, A, -1), lr, axis=0))
+    return np.exp(_split(lr, miss, tol, most=4))
 
 
 def _refinement(rows: dict, angle, tol: float) -> np.ndarray:
@@ -808,30 +794,47 @@ def _refinement(rows: dict, angle, tol: float) -> np.ndarray:
     """
     A = angle.size
     R = rows["cor_n"].shape[0]
-    W = rows["cor_n"].shape[1] // A
-    sin = np.sin(np.radians(angle))
-    fields = []
-    for name in ("cor_n", "vt_ratio", "spin_ratio"):
-        f = rows[name].reshape(R, A, W, -1)
-        if name == "vt_ratio":  # cor_t = vt_ratio / sin(angle): its error is vt's over sin
-            f = f / np.where(sin > 0, sin, np.inf)[None, :, None, None]
-        fields.append(f)
-    h = np.diff(angle)
     miss = np.zeros(A - 1)
-    for f in fields:
-        # second differences on a non-uniform grid, scaled to the interval's width
-        left, right = f[:, :-2], f[:, 2:]
-        mid = f[:, 1:-1]
-        h0, h1 = h[:-1], h[1:]
-        shape = (1, -1, 1, 1)
-        w0 = (h1 / (h0 + h1)).reshape(shape)
-        w1 = (h0 / (h0 + h1)).reshape(shape)
-        d2 = np.abs(w0 * left + w1 * right - mid)  # the node's miss by its neighbours' line
-        d2 = np.max(np.nan_to_num(d2, nan=0.0), axis=(0, 2, 3))  # (stick rows: NaN)
-        node = np.concatenate([[0.0], d2, [0.0]])
-        miss = np.maximum(miss, np.maximum(node[:-1], node[1:]) / 2.0)
-    parts = np.minimum(np.ceil(miss / tol), 8).astype(int)
-    new = [angle[j] + h[j] * np.arange(1, m) / m for j, m in enumerate(parts) if m > 1]
+    for f in _results(rows, angle):
+        miss = np.maximum(miss, _interval_miss(f.reshape(R, A, -1), angle, axis=1))
+    return _split(angle, miss, tol, most=8)
+
+
+def _results(rows: dict, angle, held=None):
+    """``cor_n``, ``cor_t``'s error scale (``vt_ratio / sin(angle)``: cor_t's error is vt's
+    over sin) and ``spin_ratio`` as ``(R, A, W*X)`` arrays, NaN where ``held``."""
+    R, A = rows["cor_n"].shape[0], angle.size
+    sin = np.sin(np.radians(angle))
+    for name in ("cor_n", "vt_ratio", "spin_ratio"):
+        f = rows[name] if held is None else np.where(held, np.nan, rows[name])
+        f = f.reshape(R, A, -1)
+        if name == "vt_ratio":
+            f = f / np.where(sin > 0, sin, np.inf)[None, :, None]
+        yield f
+
+
+def _interval_miss(f, nodes, axis: int) -> np.ndarray:
+    """Per interval of ``nodes`` (along ``axis`` of ``f``): half the largest second
+    difference at its two ends, each node's miss by its neighbours' line on the non-uniform
+    grid (NaN entries count as 0)."""
+    f = np.moveaxis(f, axis, 0)
+    h = np.diff(nodes)
+    h0, h1 = h[:-1], h[1:]
+    shape = (-1,) + (1,) * (f.ndim - 1)
+    w0 = (h1 / (h0 + h1)).reshape(shape)
+    w1 = (h0 / (h0 + h1)).reshape(shape)
+    d2 = np.abs(w0 * f[:-2] + w1 * f[2:] - f[1:-1])
+    d2 = np.max(np.nan_to_num(d2, nan=0.0).reshape(d2.shape[0], -1), axis=1)
+    node = np.concatenate([[0.0], d2, [0.0]])
+    return np.maximum(node[:-1], node[1:]) / 2.0
+
+
+def _split(nodes, miss, tol: float, most: int) -> np.ndarray:
+    """New nodes splitting each interval into ``ceil(miss / tol)`` equal parts (at most
+    ``most``)."""
+    h = np.diff(nodes)
+    parts = np.minimum(np.ceil(miss / tol), most).astype(int)
+    new = [nodes[j] + h[j] * np.arange(1, m) / m for j, m in enumerate(parts) if m > 1]
     return np.concatenate(new) if new else np.array([])
 
 
