@@ -639,15 +639,16 @@ def test_c_header_matches_python_across_radius_and_above_the_top(wide_law, tmp_p
 @pytest.mark.slow  # a two-decade radius table (minutes) and 600 impacts
 def test_two_decade_radius_table_against_simulate(scene):
     """1-100 um (Table 1 sticks at every speed below about 9.5 um): off-grid radii and speeds
-    at the table's angles (the angle axis is the default-grid test's), against capture_speed
-    and simulate. Targets: capture speed 1e-3, no stick/rebound disagreement beyond 0.5 % of
+    at the table's angles (0 and 60 degrees and those the refinement adds; the angle axis is
+    the default-grid test's, and three first-pass angles took 3x the time), against
+    capture_speed and simulate. Targets: capture speed 1e-3, no stick/rebound disagreement beyond 0.5 % of
     the capture speed, cor_n 1e-3; cor_t and the spin are held to 2e-3 (measured 1.4e-3 and
     1.6e-3 near the stick radius: the results' radius test at 2e-4 leaves them above 1e-3)."""
     from jaximpact.wall_law import _table
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(_table, "MIN_BATCH_LANES", 256)
-        law = wall_law(scene, radius=(1e-6, 100e-6), angle_deg=(0.0, 30.0, 60.0))
+        law = wall_law(scene, radius=(1e-6, 100e-6), angle_deg=(0.0, 60.0))
     assert law.stick[0].all() and not law.stick[-1].any()
     bands = law.radius_report["unresolved"]
     rng = np.random.default_rng(7)
