@@ -212,6 +212,32 @@ def test_program_cache_path_gives_the_jit_paths_bits(table1, tmp_path):
         )
 
 
+def test_small_batches_of_a_scene_share_one_program(table1, tmp_path):
+    """Batches of 3 and 40 impacts are padded to the same lane count (``SHARED_PROGRAM_LANES``):
+    one new compiled program for both, and the 3 impacts' bits are those of the same impacts
+    inside the 40."""
+    from jaximpact._io.cache import enable_compilation_cache
+
+    speed, angle = np.geomspace(0.3, 5.0, 40), np.linspace(0.0, 60.0, 40)
+    previous = jax.config.jax_compilation_cache_dir
+    try:
+        enable_compilation_cache(tmp_path)  # concrete batches through the program cache
+        before = set(_simulate._CACHED_PROGRAMS)
+        small = ji.simulate(table1, speed[:3], angle[:3], 0.0)
+        large = ji.simulate(table1, speed, angle, 0.0)
+        new = set(_simulate._CACHED_PROGRAMS) - before
+    finally:
+        if previous:
+            enable_compilation_cache(previous)
+        else:
+            jax.config.update("jax_compilation_cache_dir", None)
+    assert len(new) == 1
+    for k in ("status", "steps", "cor_n", "vt_out", "omega_out", "contact_time"):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(small, k)), np.asarray(getattr(large, k))[:3], k
+        )
+
+
 def test_leaves_out_unneeded_terms(table1):
     params = {k: jnp.asarray(v) for k, v in _simulate.scene_parameters(table1).items()}
     normal = _simulate.required_terms(table1, params, jnp.zeros(3), jnp.zeros(3))

@@ -641,9 +641,10 @@ def test_two_decade_radius_table_against_simulate(scene):
     """1-100 um (Table 1 sticks at every speed below about 9.5 um): off-grid radii and speeds
     at the table's angles (0 and 60 degrees and those the refinement adds; the angle axis is
     the default-grid test's, and three first-pass angles took 3x the time), against
-    capture_speed and simulate. Targets: capture speed 1e-3, no stick/rebound disagreement beyond 0.5 % of
-    the capture speed, cor_n 1e-3; cor_t and the spin are held to 2e-3 (measured 1.4e-3 and
-    1.6e-3 near the stick radius: the results' radius test at 2e-4 leaves them above 1e-3)."""
+    capture_speed and simulate. Targets: capture speed 1e-3, no stick/rebound disagreement
+    beyond 0.5 % of the capture speed, cor_n 1e-3; cor_t and the spin are held to 2e-3
+    (measured 1.4e-3 and 1.6e-3 near the stick radius: the results' radius test at 2e-4
+    leaves them above 1e-3)."""
     from jaximpact.wall_law import _table
 
     with pytest.MonkeyPatch.context() as mp:
