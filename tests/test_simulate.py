@@ -220,13 +220,18 @@ def test_small_batches_of_a_scene_share_one_program(table1, tmp_path):
 
     speed, angle = np.geomspace(0.3, 5.0, 40), np.linspace(0.0, 60.0, 40)
     previous = jax.config.jax_compilation_cache_dir
+    # Another test in this process may have made this scene's program already: start from an
+    # empty memo (and put the process's programs back afterwards).
+    kept = _simulate._CACHED_PROGRAMS.copy()
+    _simulate._CACHED_PROGRAMS.clear()
     try:
         enable_compilation_cache(tmp_path)  # concrete batches through the program cache
-        before = set(_simulate._CACHED_PROGRAMS)
         small = ji.simulate(table1, speed[:3], angle[:3], 0.0)
         large = ji.simulate(table1, speed, angle, 0.0)
-        new = set(_simulate._CACHED_PROGRAMS) - before
+        new = set(_simulate._CACHED_PROGRAMS)
     finally:
+        _simulate._CACHED_PROGRAMS.clear()
+        _simulate._CACHED_PROGRAMS.update(kept)
         if previous:
             enable_compilation_cache(previous)
         else:
