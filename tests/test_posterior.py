@@ -647,6 +647,32 @@ def test_smc_finds_the_posterior_from_a_misplaced_fit():
     _check_gaussian_posterior(result, mean, cov)
 
 
+def test_stuck_verdict_sees_copies_not_a_heavy_tail():
+    """The verdict on moves that reached MAX_MOVES: copies that moved apart in a coordinate
+    with a heavy tail (a posterior against a bound, in logit) keep a Pearson correlation above
+    DECORRELATION through three tail particles, not a rank correlation; copies that did not
+    move apart keep both; independent positions are never judged stuck."""
+    from fitting._bayesian import smc
+
+    rng = np.random.default_rng(5)
+    n = 500
+    bulk = rng.standard_normal((n, 3))
+    anchor, moved = bulk.copy(), rng.standard_normal((n, 3))  # every particle moved
+    # three particles far out in the tail at the resampling and still out there (elsewhere)
+    anchor[:3, 2] = -rng.uniform(8.0, 12.0, 3)
+    moved[:3, 2] = -rng.uniform(8.0, 12.0, 3)
+    assert smc._correlation(anchor, moved) > 2 * smc.DECORRELATION
+    assert not smc._copies_stuck(anchor, moved)
+    # copies still near where they were: a rank correlation of 0.9
+    stuck = anchor + 0.5 * rng.standard_normal((n, 3))
+    assert smc._copies_stuck(anchor, stuck)
+    # independent positions: at 500 particles, chance alone would put the largest |r| of three
+    # coordinates above DECORRELATION in 7 % of populations (here: 1 in 40); never judged stuck
+    fresh = [smc._rank_correlation(anchor, rng.standard_normal((n, 3))) for _ in range(40)]
+    assert max(fresh) > smc.DECORRELATION
+    assert not any(smc._copies_stuck(anchor, rng.standard_normal((n, 3))) for _ in range(40))
+
+
 def test_sampling_space_round_trip_and_normalized_prior():
     """The sampler's coordinates: physical values -> x -> u are the fit's transforms; a
     log-uniform coordinate's prior is the standard logistic (integrates to 1 over x), and a
