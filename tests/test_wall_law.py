@@ -7,6 +7,7 @@ default grid (1e-3 in cor_n and cor_t) is the slow test at the end (and BENCHMAR
 
 import ctypes
 import json
+import re
 import shutil
 import subprocess
 
@@ -417,7 +418,20 @@ def test_files_netcdf_parquet_and_code(law, tmp_path):
     entry = (tmp_path / "openfoam/cloudProperties.jaximpact").read_text()
     assert "patchInteractionModel jaximpactWallLaw;" in entry
     assert 'TypeName("jaximpactWallLaw")' in (tmp_path / "openfoam/JaximpactWallLaw.H").read_text()
-    assert "libjaximpactWallLaw" in (tmp_path / "openfoam/Make/files").read_text()
+    files = (tmp_path / "openfoam/Make/files").read_text()
+    assert "libjaximpactWallLaw" in files
+    # every source that wmake compiles was written, and together they register the model for
+    # each parcel cloud of OpenFOAM v1912's lagrangian/intermediate that a rigid sphere fits
+    sources = [line for line in files.splitlines() if line.endswith(".C")]
+    pattern = re.compile(r"makePatchInteractionModelType\(JaximpactWallLaw, (\w+)\)")
+    registered = set()
+    for source in sources:
+        registered |= set(pattern.findall((tmp_path / "openfoam" / source).read_text()))
+    assert registered == {
+        "basicKinematicCloud", "basicKinematicCollidingCloud", "basicKinematicMPPICCloud",
+        "basicThermoCloud", "basicReactingCloud", "basicReactingMultiphaseCloud",
+    }  # fmt: skip
+    assert "onClamped" in entry and "fallbackEn" in entry
 
 
 def test_posterior_draws_give_capture_probability_and_spread(scene, tmp_path):

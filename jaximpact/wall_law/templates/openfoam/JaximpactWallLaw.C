@@ -17,9 +17,26 @@ Foam::JaximpactWallLaw<CloudType>::JaximpactWallLaw
     PatchInteractionModel<CloudType>(dict, cloud, typeName),
     nCaptured_(0),
     nRebound_(0),
-    nClamped_(0),
-    warnClamped_(this->coeffDict().lookupOrDefault("warnClamped", true))
-{}
+    nClamped_(cloud.mesh().boundaryMesh().size(), Zero),
+    warnClamped_(this->coeffDict().lookupOrDefault("warnClamped", true)),
+    onClamped_(this->coeffDict().lookupOrDefault("onClamped", word("clamp"))),
+    fallbackEn_(this->coeffDict().lookupOrDefault("fallbackEn", scalar(0.5))),
+    fallbackEt_(this->coeffDict().lookupOrDefault("fallbackEt", scalar(1))),
+    densityReported_(false)
+{
+    if (onClamped_ != "clamp" && onClamped_ != "stick" && onClamped_ != "rebound")
+    {
+        FatalIOErrorInFunction(this->coeffDict())
+            << "onClamped " << onClamped_ << ": choose clamp, stick or rebound"
+            << exit(FatalIOError);
+    }
+    if (fallbackEn_ < 0 || fallbackEn_ > 1 || fallbackEt_ < -1 || fallbackEt_ > 1)
+    {
+        FatalIOErrorInFunction(this->coeffDict())
+            << "fallbackEn " << fallbackEn_ << " must be in [0, 1] and fallbackEt "
+            << fallbackEt_ << " in [-1, 1]" << exit(FatalIOError);
+    }
+}
 
 
 template<class CloudType>
@@ -32,7 +49,11 @@ Foam::JaximpactWallLaw<CloudType>::JaximpactWallLaw
     nCaptured_(pim.nCaptured_),
     nRebound_(pim.nRebound_),
     nClamped_(pim.nClamped_),
-    warnClamped_(pim.warnClamped_)
+    warnClamped_(pim.warnClamped_),
+    onClamped_(pim.onClamped_),
+    fallbackEn_(pim.fallbackEn_),
+    fallbackEt_(pim.fallbackEt_),
+    densityReported_(pim.densityReported_)
 {}
 
 
@@ -64,28 +85,52 @@ bool Foam::JaximpactWallLaw<CloudType>::correct
     const vector Ut = Urel - vn*nw;
     const scalar vt = mag(Ut);
 
+    if
+    (
+        !densityReported_
+     && mag(p.rho() - JAXIMPACT_WL_DENSITY) > 0.01*JAXIMPACT_WL_DENSITY
+    )
+    {
+        densityReported_ = true;
+        WarningInFunction
+            << "parcel density " << p.rho() << " kg/m^3, the jaximpact wall-law "
+            << "table's is " << JAXIMPACT_WL_DENSITY << " kg/m^3: the table "
+            << "describes another sphere (reported once)" << endl;
+    }
+
     double vnOut = 0, vtOut = 0, omegaOut = 0;
-    const int code = jaximpact_wall_law
+    int code = jaximpact_wall_law
     (
         0.5*p.d(), vn, vt, 0.0, &vnOut, &vtOut, &omegaOut
     );
 
-    if (code & JAXIMPACT_WL_CLAMPED)
-    {
-        if (warnClamped_ && nClamped_ == 0)
-        {
-            WarningInFunction
-                << "impact outside the jaximpact wall-law table (radius "
-                << 0.5*p.d() << " m, normal speed " << vn
-                << " m/s, tangential speed " << vt
-                << " m/s): clamped to the table's edge" << endl;
-        }
-        ++nClamped_;
-    }
-
     if (code & JAXIMPACT_WL_INVALID)
     {
         return true;
+    }
+
+    if (code & JAXIMPACT_WL_CLAMPED)
+    {
+        if (warnClamped_ && nClamped_[pp.index()] == 0)
+        {
+            WarningInFunction
+                << "patch " << pp.name() << ": an impact outside the jaximpact "
+                << "wall-law table (radius " << 0.5*p.d() << " m, normal speed "
+                << vn << " m/s, tangential speed " << vt << " m/s): onClamped "
+                << onClamped_ << " (reported once per patch; the counts are "
+                << "in the cloud's info)" << endl;
+        }
+        ++nClamped_[pp.index()];
+        if (onClamped_ == "stick")
+        {
+            code = JAXIMPACT_WL_CAPTURED;
+        }
+        else if (onClamped_ == "rebound")
+        {
+            code = JAXIMPACT_WL_REBOUND;
+            vnOut = fallbackEn_*vn;
+            vtOut = fallbackEt_*vt;
+        }
     }
 
     if (code & JAXIMPACT_WL_CAPTURED)
@@ -112,5 +157,17 @@ void Foam::JaximpactWallLaw<CloudType>::info(Ostream& os)
     os  << "    jaximpact wall law: captured = "
         << returnReduce(nCaptured_, sumOp<label>())
         << ", rebound = " << returnReduce(nRebound_, sumOp<label>())
-        << ", clamped = " << returnReduce(nClamped_, sumOp<label>()) << nl;
+        << ", clamped = " << returnReduce(sum(nClamped_), sumOp<label>()) << nl;
+
+    const polyBoundaryMesh& patches = this->owner().mesh().boundaryMesh();
+    forAll(nClamped_, patchi)
+    {
+        const label n = returnReduce(nClamped_[patchi], sumOp<label>());
+        if (n)
+        {
+            os  << "    jaximpact wall law: clamped on patch "
+                << patches[patchi].name() << " = " << n
+                << " (onClamped " << onClamped_ << ")" << nl;
+        }
+    }
 }
