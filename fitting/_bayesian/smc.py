@@ -363,19 +363,15 @@ def _rank_correlation(anchor: np.ndarray, X: np.ndarray) -> float:
     a bound, whose logit runs far out) keeps a Pearson correlation of ~0.2 through a few
     tail particles that stay in the tail (measured: 0.21 with every particle moved, rank
     correlation 0.01); copies that have not moved apart keep both."""
-    return _correlation(_ranks(anchor), _ranks(X))
+    return _correlation(rankdata(anchor, axis=0), rankdata(X, axis=0))
 
 
 def _copies_stuck(anchor: np.ndarray, X: np.ndarray) -> bool:
     """Whether positions ``X`` (moved from ``anchor``, the last resampling's) are still the
     resampled copies: the correlation of ranks above :data:`DECORRELATION` and above
-    :data:`STUCK_SE` standard errors of independent positions'."""
+    :data:`STUCK_SE` standard errors of the correlation of independent positions."""
     limit = max(DECORRELATION, STUCK_SE / math.sqrt(len(X)))
     return _rank_correlation(anchor, X) >= limit
-
-
-def _ranks(X: np.ndarray) -> np.ndarray:
-    return np.apply_along_axis(rankdata, 0, X)
 
 
 def run_smc(
