@@ -12,47 +12,68 @@ Typical use::
 or, from the shell, ``jaximpact fit [SCENE.toml] DATA.csv --params C_A C_H f0``.
 """
 
-from ._bayesian.loo import LOO as LOO
-from ._bayesian.loo import compare_models as compare_models
-from ._bayesian.loo import loo as loo
-from ._bayesian.loo import pointwise_log_likelihood as pointwise_log_likelihood
-from ._bayesian.posterior import PosteriorResult as PosteriorResult
-from ._bayesian.posterior import posterior_predictive as posterior_predictive
-from ._bayesian.posterior import sample_posterior as sample_posterior
-from ._bayesian.priors import PRIOR_RANGES as PRIOR_RANGES
-from ._bayesian.priors import Prior as Prior
-from ._bayesian.report import plot_corner as plot_corner
-from ._bayesian.report import plot_predictive as plot_predictive
-from ._bayesian.report import posterior_summary as posterior_summary
-from ._bayesian.report import write_draws as write_draws
-from ._data import OBSERVABLES as OBSERVABLES
-from ._data import DataError as DataError
-from ._data import Observations as Observations
-from ._data import kharaz2001_path as kharaz2001_path
-from ._data import load_kharaz2001 as load_kharaz2001
-from ._data import load_observations as load_observations
-from ._design import DesignResult as DesignResult
-from ._design import design as design
-from ._design import log_det_information as log_det_information
-from ._design import write_design as write_design
-from ._least_squares.fit import BOUNDS as BOUNDS
-from ._least_squares.fit import SOLVERS as SOLVERS
-from ._least_squares.fit import STATUSES as STATUSES
-from ._least_squares.fit import FitResult as FitResult
-from ._least_squares.fit import StartResult as StartResult
-from ._least_squares.fit import fit as fit
-from ._least_squares.fit import to_physical as to_physical
-from ._least_squares.fit import to_unbounded as to_unbounded
-from ._least_squares.objective import DEFAULT_SCALES as DEFAULT_SCALES
-from ._least_squares.objective import FITTABLE as FITTABLE
-from ._least_squares.objective import FitError as FitError
-from ._least_squares.objective import Objective as Objective
-from ._least_squares.profile import Profile as Profile
-from ._least_squares.profile import plot_profile as plot_profile
-from ._least_squares.profile import profile as profile
-from ._least_squares.program import ResidualProgram as ResidualProgram
-from ._least_squares.report import plot_fit as plot_fit
-from ._least_squares.report import result_dict as result_dict
-from ._least_squares.report import summary as summary
-from ._least_squares.report import write_json as write_json
-from ._scenes import kharaz2001_scene as kharaz2001_scene
+import importlib
+
+# The public names and the modules that define them, imported on first use (PEP 562): the
+# ``jaximpact`` command loads ``fitting.cli`` for its ``fit`` command at every start, and an
+# eager import of the samplers (scipy.stats, arviz) cost every command about 0.6 s.
+_EXPORTS = {
+    "LOO": "._bayesian.loo",
+    "compare_models": "._bayesian.loo",
+    "loo": "._bayesian.loo",
+    "pointwise_log_likelihood": "._bayesian.loo",
+    "PosteriorResult": "._bayesian.posterior",
+    "posterior_predictive": "._bayesian.posterior",
+    "sample_posterior": "._bayesian.posterior",
+    "PRIOR_RANGES": "._bayesian.priors",
+    "Prior": "._bayesian.priors",
+    "plot_corner": "._bayesian.report",
+    "plot_predictive": "._bayesian.report",
+    "posterior_summary": "._bayesian.report",
+    "write_draws": "._bayesian.report",
+    "OBSERVABLES": "._data",
+    "DataError": "._data",
+    "Observations": "._data",
+    "kharaz2001_path": "._data",
+    "load_kharaz2001": "._data",
+    "load_observations": "._data",
+    "DesignResult": "._design",
+    "design": "._design",
+    "log_det_information": "._design",
+    "write_design": "._design",
+    "BOUNDS": "._least_squares.fit",
+    "SOLVERS": "._least_squares.fit",
+    "STATUSES": "._least_squares.fit",
+    "FitResult": "._least_squares.fit",
+    "StartResult": "._least_squares.fit",
+    "fit": "._least_squares.fit",
+    "to_physical": "._least_squares.fit",
+    "to_unbounded": "._least_squares.fit",
+    "DEFAULT_SCALES": "._least_squares.objective",
+    "FITTABLE": "._least_squares.objective",
+    "FitError": "._least_squares.objective",
+    "Objective": "._least_squares.objective",
+    "Profile": "._least_squares.profile",
+    "plot_profile": "._least_squares.profile",
+    "profile": "._least_squares.profile",
+    "ResidualProgram": "._least_squares.program",
+    "plot_fit": "._least_squares.report",
+    "result_dict": "._least_squares.report",
+    "summary": "._least_squares.report",
+    "write_json": "._least_squares.report",
+    "kharaz2001_scene": "._scenes",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'fitting' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_EXPORTS[name], __name__), name)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))
