@@ -42,6 +42,7 @@ SECTION_OF = {
     "friction": "contact",
     "lambda": "model",
     "G_star": "contact",  # model.tangential = "mindlin"
+    "w": "contact",  # model.normal = "dmt"
 }
 PAPER_IMPACTS = {
     "speed": [1.66] * 3,

@@ -33,6 +33,7 @@ PRIOR_RANGES = {
     "friction": (1e-3, 1.5),
     "K": (1e8, 1e13),  # Pa
     "G_star": (1e6, 1e12),  # Pa (model.tangential = "mindlin")
+    "w": (1e-4, 1e2),  # J/m^2 (model.normal = "dmt")
     "lambda": (1e-3, 1e2),
     "radius": (1e-7, 1e-1),  # m
     "density": (1e2, 3e4),  # kg/m^3

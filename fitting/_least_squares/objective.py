@@ -70,6 +70,7 @@ FITTABLE = {
     "friction": ("contact", "friction"),
     "K": ("contact", "K"),
     "G_star": ("contact", "G_star"),  # with model.tangential = "mindlin"
+    "w": ("contact", "w"),  # work of adhesion, with model.normal = "dmt"
     "lambda": ("model", "lambda_"),
     "radius": ("particle", "radius"),
     "density": ("particle", "density"),
@@ -113,8 +114,8 @@ def check_names(params: Sequence[str], scene: jaximpact.Scene | None = None) -> 
     """Validate parameter names (and, given the scene, that it uses each of them).
 
     Raises:
-        FitError: no names, an unknown name, a repeated name, or ``G_star`` for a scene
-            without the Mindlin tangential spring.
+        FitError: no names, an unknown name, a repeated name, ``G_star`` for a scene
+            without the Mindlin tangential spring, ``w`` without the DMT law or ``f0`` with it.
     """
     params = tuple(params)
     if not params:
@@ -129,6 +130,13 @@ def check_names(params: Sequence[str], scene: jaximpact.Scene | None = None) -> 
             f'G_star is used only with model.tangential = "mindlin" (the scene has '
             f'"{scene.model.tangential}"); e.g. the embedded scene kharaz2001_mindlin'
         )
+    if scene is not None and "w" in params and scene.model.normal != "dmt":
+        raise FitError(
+            f'w (work of adhesion) is used only with model.normal = "dmt" (the scene has '
+            f'"{scene.model.normal}"); the Brach-Dunn ring takes f0'
+        )
+    if scene is not None and "f0" in params and scene.model.normal == "dmt":
+        raise FitError('f0 is the Brach-Dunn ring\'s; the DMT law (model.normal = "dmt") takes w')
     return params
 
 

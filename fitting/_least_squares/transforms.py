@@ -1,6 +1,6 @@
 """Solver variables: the unconstrained ``u`` that the fit moves, and the physical values.
 
-``p = exp(u)`` for positive parameters (C_A, C_H, f0, K, G_star, lambda, radius, density) and
+``p = exp(u)`` for positive parameters (C_A, C_H, f0, K, G_star, w, lambda, radius, density) and
 ``p = lo + (hi - lo) sigmoid(u)`` for the bounded ones (:data:`BOUNDS`: friction, over its
 whole documented range, (0, 10); docs/input_ranges.md). Starting values are checked against
 the same ranges as a scene's values (``jaximpact._ranges.RANGES``), so that simulate, fit and

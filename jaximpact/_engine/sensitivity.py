@@ -19,6 +19,7 @@ _SECTIONS = {
     "radius": ("particle", "radius"), "density": ("particle", "density"),
     "lambda": ("model", "lambda_"),
     "G_star": ("contact", "G_star"),  # model.tangential = "mindlin" only
+    "w": ("contact", "w"),  # model.normal = "dmt" only
 }  # fmt: skip
 
 

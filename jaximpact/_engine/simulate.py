@@ -43,7 +43,7 @@ T_MAX = 1e5  # in Hertz times; the step limit, not this, bounds a slow impact
 
 def scene_parameters(scene: Scene) -> dict:
     """The scene's float parameters by their impacts-CSV column names (and ``G_star`` when the
-    scene uses the Mindlin tangential spring)."""
+    scene uses the Mindlin tangential spring, ``w`` with the DMT normal law)."""
     params = {
         "radius": scene.particle.radius,
         "density": scene.particle.density,
@@ -56,6 +56,8 @@ def scene_parameters(scene: Scene) -> dict:
     }
     if scene.model.tangential == "mindlin":
         params["G_star"] = scene.contact.G_star
+    if scene.model.normal == "dmt":
+        params["w"] = scene.contact.w
     return params
 
 
@@ -89,7 +91,8 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
             "contact.G_star (model.tangential = 'mindlin')", params["G_star"], positive=True
         )
     tangential = not _all([angle_deg, omega0], lambda v: v == 0)
-    adhesion = m.adhesion and not _all([params["f0"]], lambda v: v == 0)
+    strength = params["w"] if m.normal == "dmt" else params["f0"]
+    adhesion = m.adhesion and not _all([strength], lambda v: v == 0)
     moments = m.rolling_moments
     if moments == "lambda" and _all([params["lambda"]], lambda v: v == 0):
         moments = "none"
@@ -109,6 +112,7 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         slip_relaxation=SLIP_RELAXATION,
         mindlin=tangential and m.tangential == "mindlin",
         cap_width=CAP_WIDTH if m.tangential == "mindlin" else 0.0,
+        normal=m.normal,
     )
 
 
@@ -151,6 +155,7 @@ def _scaled(params, speed, angle_deg, omega0):
         lam=params["lambda"],
         inertia_factor=INERTIA_FACTOR,
         G_star=params.get("G_star"),
+        w_adhesion=params.get("w"),
     )
     return p, units
 
@@ -174,6 +179,14 @@ def _error_norm(error):
     return norm
 
 
+def _shell_adhesion(terms: dyn.Terms, p: ScaledParameters):
+    """The work of the adhesion force across the shell ``0 <= n <= floor`` (``-V(floor)``) and
+    the damping constant of that force while the contact separates (the ring's ``C_A``; the
+    DMT force is not damped)."""
+    work = -dyn.adhesion_potential(terms, p, terms.contact_floor)
+    return work, (p.C_A if terms.ring else 0.0)
+
+
 def _shell_entry(terms: dyn.Terms, p: ScaledParameters, dtype) -> dict:
     """The approach through the shell ``0 <= n <= floor``, in closed form.
 
@@ -186,7 +199,7 @@ def _shell_entry(terms: dyn.Terms, p: ScaledParameters, dtype) -> dict:
     hertz = 0.4 * p.K * sr * eps**2.5
     work = -hertz * (1.0 + p.C_H)
     if terms.adhesion:
-        work = work + (4.0 / 3.0) * jnp.pi * p.f0 * sr * eps**1.5
+        work = work + _shell_adhesion(terms, p)[0]
     ndot = jnp.sqrt(jnp.asarray(1.0 + 2.0 * work, dtype))
     shell = {"ndot": ndot, "time": 2.0 * eps / (1.0 + ndot), "peak": eps}
     shell["loss_hertz_damping"] = hertz * p.C_H
@@ -210,8 +223,8 @@ def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot, spring=None) -> dic
     work = hertz - shell["loss_hertz_damping"]
     shell["loss_adhesion_damping"] = jnp.zeros_like(ndot)
     if terms.adhesion:
-        adhesion = (4.0 / 3.0) * jnp.pi * p.f0 * sr * eps**1.5
-        shell["loss_adhesion_damping"] = adhesion * p.C_A * speed
+        adhesion, damping = _shell_adhesion(terms, p)
+        shell["loss_adhesion_damping"] = adhesion * damping * speed
         work = work - adhesion - shell["loss_adhesion_damping"]
     if spring is not None:
         work = work + spring
@@ -249,8 +262,8 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
     if terms.friction_load == "net":
         load = -hertz * (1.0 + p.C_H * ndot)
         if terms.adhesion:
-            adhesion = (4.0 / 3.0) * jnp.pi * p.f0 * sr * eps**1.5
-            load = load + adhesion * (1.0 + p.C_A * jnp.maximum(-ndot, 0.0))
+            adhesion, damping = _shell_adhesion(terms, p)
+            load = load + adhesion * (1.0 + damping * jnp.maximum(-ndot, 0.0))
         load = jnp.abs(load)
     else:
         load = hertz
@@ -963,6 +976,7 @@ _NOMINAL = {
     "friction": 0.3,
     "lambda": 0.0,
     "G_star": 2e10,
+    "w": 0.1,
 }
 
 

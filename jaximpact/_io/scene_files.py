@@ -35,8 +35,17 @@ ALLOWED = {
         "reference_speed",
         "friction",
         "G_star",
+        "w",
     },
-    "model": {"rotation", "adhesion", "rolling_moments", "lambda", "friction_load", "tangential"},
+    "model": {
+        "rotation",
+        "adhesion",
+        "rolling_moments",
+        "lambda",
+        "friction_load",
+        "tangential",
+        "normal",
+    },
     "impact": {"speed", "angle_deg", "omega0"},
     "solver": {
         "outputs",
@@ -53,7 +62,7 @@ ALLOWED = {
 # [priors]: a Bayesian prior per parameter that `fitting` may sample (`fitting.sample_posterior`,
 # `jaximpact fit --posterior`), as text "loguniform:LO:HI" or "normal:MU:SD" (SI units); the
 # simulator ignores them. The spec itself is checked by `fitting` (it names the scene key).
-PRIOR_NAMES = {"C_A", "C_H", "f0", "friction", "K", "G_star", "lambda", "radius", "density"}
+PRIOR_NAMES = {"C_A", "C_H", "f0", "friction", "K", "G_star", "w", "lambda", "radius", "density"}
 ALLOWED["priors"] = PRIOR_NAMES
 REQUIRED_SECTIONS = ("particle", "contact")
 
@@ -134,7 +143,7 @@ def scene_from_dict(data: dict) -> Scene:
     number = _numbers(data)
     particle = Particle(radius=number("particle", "radius"), density=number("particle", "density"))
     contact, f0, G_star = _contact(data, particle)
-    model = _model(data, f0, G_star)
+    model = _model(data, contact, G_star)
     impact = Impact(
         speed=number("impact", "speed", 1.0),
         angle_deg=number("impact", "angle_deg", 0.0),
@@ -239,27 +248,39 @@ def _contact(data: dict, particle: Particle) -> tuple:
         C_H=damping["H"],
         friction=number("contact", "friction", 0.0),
         G_star=G_star,
+        w=number("contact", "w", 0.0),
     )
     return contact, f0, G_star
 
 
-def _model(data: dict, f0: float, G_star: float) -> Model:
+def _model(data: dict, contact: Contact, G_star: float) -> Model:
     """The ``[model]`` switches, checked against the contact parameters they need."""
     number = _numbers(data)
     m = data.get("model", {})
+    c = data["contact"]
     for key in ("rotation", "adhesion"):
         if key in m and not isinstance(m[key], bool):
             raise SceneError(f"model.{key} must be true or false, got {m[key]!r}")
-    for key in ("rolling_moments", "friction_load", "tangential"):
+    for key in ("rolling_moments", "friction_load", "tangential", "normal"):
         if key in m and not isinstance(m[key], str):
             raise SceneError(f"model.{key} must be a string, got {m[key]!r}")
+    normal = m.get("normal", "brach_dunn")
+    if normal == "dmt" and "f0" in c:
+        raise SceneError(
+            'contact.f0 is the adhesion ring of model.normal = "brach_dunn"; the DMT law takes '
+            "the work of adhesion contact.w (J/m^2)"
+        )
+    if normal != "dmt" and "w" in c:
+        raise SceneError('contact.w (work of adhesion) is used only with model.normal = "dmt"')
+    strength = contact.w if normal == "dmt" else contact.f0
     model = Model(
         rotation=m.get("rotation", True),
-        adhesion=m.get("adhesion", f0 > 0),
+        adhesion=m.get("adhesion", bool(strength > 0)),
         rolling_moments=m.get("rolling_moments", "analytical"),
         friction_load=m.get("friction_load", "net"),
         lambda_=number("model", "lambda", 0.0),
         tangential=m.get("tangential", "rigid"),
+        normal=normal,
     )
     if model.tangential == "mindlin" and not G_star > 0:
         raise SceneError(

@@ -79,7 +79,11 @@ def _particle_and_contact(scene, raw: dict, r, rho, K, mass) -> list[str]:
     else:
         origin = "given"
     lines.append(f"  K                   {_g(K)} Pa  ({origin})")
-    lines.append(f"  f0                  {_g(c.f0)} N/m")
+    if m.normal == "dmt":
+        pull_off = "work of adhesion; DMT pull-off 2 pi w r"
+        lines.append(f"  w                   {_g(c.w)} J/m^2  ({pull_off})")
+    else:
+        lines.append(f"  f0                  {_g(c.f0)} N/m")
     for name in ("A", "H"):
         value = float(getattr(c, f"C_{name}"))
         if f"zeta_{name}" in raw:
@@ -101,6 +105,7 @@ def _model_lines(m) -> list[str]:
     """The model switches."""
     lines = []
     lines.append("model")
+    lines.append(f"  normal              {m.normal}")
     lines.append(f"  rotation            {m.rotation}")
     lines.append(f"  adhesion            {m.adhesion}")
     lines.append(f"  rolling_moments     {m.rolling_moments}")
@@ -165,10 +170,15 @@ def _terms_lines(terms, m) -> list[str]:
     lines = []
     used, left = [], []
     used.append("normal: Hertz force, Hertz damping")
-    if terms.adhesion:
+    strength = "w = 0" if m.normal == "dmt" else "f0 = 0"
+    if terms.ring:
         used.append("adhesion ring force and adhesion damping")
+    elif terms.adhesion:
+        used.append("DMT adhesion 2 pi w r (constant in contact, undamped)")
     else:
-        left.append("adhesion (" + ("model.adhesion = false" if not m.adhesion else "f0 = 0") + ")")
+        left.append("adhesion (" + ("model.adhesion = false" if not m.adhesion else strength) + ")")
+    if m.normal == "dmt":
+        left.append('adhesion ring, its damping and peeling moment M_A (model.normal = "dmt")')
     if terms.mindlin:
         used.append(
             f"Mindlin tangential spring 8 G* a, capped by friction ({m.friction_load} normal load)"
@@ -184,7 +194,8 @@ def _terms_lines(terms, m) -> list[str]:
     elif terms.tangential:
         left.append("rotation (model.rotation = false)")
     if terms.has_moments:
-        kind = "M_A + M_H" if terms.rolling_moments == "analytical" else "constant lambda"
+        kind = "M_A + M_H" if terms.ring else "M_H"
+        kind = kind if terms.rolling_moments == "analytical" else "constant lambda"
         used.append(f"rolling dissipation moments ({kind})")
     elif m.rolling_moments == "none":
         left.append('rolling moments (model.rolling_moments = "none")')
@@ -200,7 +211,7 @@ def _terms_lines(terms, m) -> list[str]:
     lines.append("left out")
     lines += [f"  {t}" for t in left] or ["  nothing"]
     lines.append(
-        "(a batch compiles the union of what its impacts need; zero values of f0, lambda or "
+        "(a batch compiles the union of what its impacts need; zero values of f0 (w), lambda or "
         "C_A and C_H leave their terms out only when known before tracing)"
     )
     return lines

@@ -8,7 +8,7 @@ State (a dict of scalars), by what the terms need:
 - always: ``n``, ``ndot``, ``peak`` (integral of max(ndot, 0): the peak overlap, since the
   sphere approaches only once before it separates or is declared captured) and
   ``loss_hertz_damping``;
-- adhesion: ``loss_adhesion_damping``;
+- the adhesion ring (Brach-Dunn normal law with adhesion): ``loss_adhesion_damping``;
 - tangential: ``vt``, ``loss_friction`` and ``slide_time`` (the time until rolling first starts);
 - rotation: ``w``; rolling moments: ``loss_rolling``;
 - the Mindlin tangential spring (``Terms.mindlin``): ``xi``, its elastic displacement.
@@ -48,16 +48,23 @@ class Terms(eqx.Module):
     # friction law; cap_width is its regularization width at the Coulomb cap (fraction of it).
     mindlin: bool = eqx.field(static=True, default=False)
     cap_width: float = eqx.field(static=True, default=0.0)
+    # model.normal: "brach_dunn" (the adhesion ring) or "dmt" (constant adhesion 2 pi w r).
+    normal: str = eqx.field(static=True, default="brach_dunn")
 
     @property
     def has_moments(self):
         return self.rotation and self.rolling_moments != "none"
 
+    @property
+    def ring(self):
+        """The Brach-Dunn adhesion ring, with its damping and peeling moment, is compiled."""
+        return self.adhesion and self.normal == "brach_dunn"
+
 
 def initial_state(terms: Terms, vt0, w0, dtype):
     zero = jnp.zeros((), dtype)
     y = {"n": zero, "ndot": jnp.ones((), dtype), "peak": zero, "loss_hertz_damping": zero}
-    if terms.adhesion:
+    if terms.ring:
         y["loss_adhesion_damping"] = zero
     if terms.tangential:
         y.update(vt=jnp.asarray(vt0, dtype), loss_friction=zero, slide_time=zero)
@@ -75,11 +82,18 @@ def initial_state(terms: Terms, vt0, w0, dtype):
 MOTION = ("n", "ndot", "vt", "w", "xi")
 
 
+def adhesion_potential(terms: Terms, p: ScaledParameters, n):
+    """The potential energy of the normal law's adhesion force (``<= 0`` in contact)."""
+    if terms.normal == "dmt":
+        return laws.dmt_potential(n, p.radius, p.w_adhesion)
+    return laws.adhesion_potential(n, p.radius, p.f0)
+
+
 def normal_energy(terms: Terms, p: ScaledParameters, y):
     """``ndot^2/2 + V(n)``: it never increases without spin, and ``< 0`` means capture."""
     e = 0.5 * y["ndot"] ** 2 + laws.hertz_potential(y["n"], p.radius, p.K)
     if terms.adhesion:
-        e = e + laws.adhesion_potential(y["n"], p.radius, p.f0)
+        e = e + adhesion_potential(terms, p, y["n"])
     return e
 
 
@@ -94,7 +108,7 @@ def capture_margin(terms: Terms, p: ScaledParameters, y):
     """
     kinetic = 0.5 * y["ndot"] ** 2
     hertz = laws.hertz_potential(y["n"], p.radius, p.K)
-    adhesion = laws.adhesion_potential(y["n"], p.radius, p.f0)  # <= 0
+    adhesion = adhesion_potential(terms, p, y["n"])  # <= 0
     return (kinetic + hertz + adhesion) / (kinetic + hertz - adhesion)
 
 
@@ -123,7 +137,11 @@ def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w):
     f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
     F_n = f["F_H"] + f["F_HD"]
     M_A = None
-    if terms.adhesion:
+    if terms.adhesion and terms.normal == "dmt":  # no ring: no damping, no peeling moment
+        f["F_A"] = laws.dmt_adhesion_force(n, p.radius, p.w_adhesion)
+        F_n = F_n + f["F_A"]
+        M_A = jnp.zeros_like(n)
+    elif terms.adhesion:
         # The spin enters the ring only with the analytical moments, where the ring also
         # yields M_A; otherwise the spin-free ring keeps the adhesion damping dissipative.
         ring_spin = w if terms.rolling_moments == "analytical" else None
@@ -232,7 +250,7 @@ class ImpactField(eqx.Module):
             "peak": jnp.maximum(ndot, 0.0),
             "loss_hertz_damping": -f["F_HD"] * ndot,
         }
-        if terms.adhesion:
+        if terms.ring:
             dy["loss_adhesion_damping"] = -f["F_AD"] * ndot
         if terms.tangential:
             dy["vt"] = f["F_t"]

@@ -42,6 +42,20 @@ def adhesion_force(n, radius, f0, n_min=0.0):
     return 2.0 * jnp.pi * contact_radius(n, radius, n_min) * f0
 
 
+def dmt_adhesion_force(n, radius, w):
+    """DMT adhesion ``F = 2 pi w r`` (Derjaguin, Muller & Toporov 1975), attractive, constant
+    while in contact; ``w`` is the work of adhesion. Returned for every ``n`` (the simulator
+    integrates only the contact, and a constant continues smoothly into the stages that
+    overshoot below its floor)."""
+    return jnp.broadcast_to(2.0 * jnp.pi * w * radius, jnp.shape(n)).astype(jnp.result_type(n))
+
+
+def dmt_potential(n, radius, w):
+    """Potential energy of the DMT adhesion in contact, ``-2 pi w r n`` (continued linearly
+    below ``n = 0``, as the force is)."""
+    return -2.0 * jnp.pi * w * radius * n
+
+
 def hertz_potential(n, radius, K):
     """Potential energy of the Hertz force, ``(2/5) K sqrt(r) n^2.5``."""
     return 0.4 * K * jnp.sqrt(radius) * safe_pow(n, 2.5)

@@ -20,6 +20,8 @@ INERTIA_FACTOR = 0.4  # k^2 / r^2 of a solid sphere (CONVENTIONS)
 RollingMoments = Literal["none", "analytical", "lambda"]
 FrictionLoad = Literal["net", "hertz"]
 TANGENTIAL_MODELS = ("rigid", "mindlin")
+#: The normal contact laws of ``model.normal`` (docs/physics.md, "Normal laws").
+NORMAL_LAWS = ("brach_dunn", "dmt")
 SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
 
 
@@ -122,6 +124,9 @@ class Contact(eqx.Module):
     - `G_star`: effective shear modulus (Pa, > 0) of the tangential (Mindlin) stiffness
       ``k_t = 8 G* a``, ``1/G* = (2 - nu1)/G1 + (2 - nu2)/G2``; used only with
       ``model.tangential = "mindlin"`` (0, the default, means "not given").
+    - `w`: work of adhesion (J/m^2, >= 0) of the DMT normal law (``model.normal = "dmt"``):
+      the energy per unit area that separates the two surfaces, ``w = 2 gamma`` for one
+      material of surface energy ``gamma``; the DMT pull-off force is ``2 pi w r``.
     """
 
     K: jax.Array = eqx.field(converter=_numbers("contact.K"))
@@ -130,9 +135,10 @@ class Contact(eqx.Module):
     C_H: jax.Array = eqx.field(converter=_numbers("contact.C_H"))
     friction: jax.Array = eqx.field(converter=_numbers("contact.friction"))
     G_star: jax.Array = eqx.field(converter=_numbers("contact.G_star"), default=0.0)
+    w: jax.Array = eqx.field(converter=_numbers("contact.w"), default=0.0)
 
     def __check_init__(self):
-        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star"):
+        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star", "w"):
             check_input(f"contact.{name}", name, getattr(self, name))
 
 
@@ -150,6 +156,10 @@ class Model(eqx.Module):
     - `tangential`: ``"rigid"`` (default: Coulomb friction on a rigid contact) or ``"mindlin"``
       (an elastic tangential spring ``8 G* a`` capped by Coulomb friction; needs
       ``contact.G_star``; docs/physics.md, "Tangential compliance").
+    - `normal`: the normal contact law: ``"brach_dunn"`` (default: Hertz, Hertzian damping,
+      the adhesion ring ``2 pi a f0`` and its damping) or ``"dmt"`` (Hertz, Hertzian damping
+      and the constant DMT adhesion ``2 pi w r`` while in contact, from ``contact.w``; no ring,
+      so no adhesion damping and no peeling moment; docs/physics.md, "Normal laws").
     """
 
     rotation: bool = eqx.field(static=True, default=True)
@@ -158,8 +168,15 @@ class Model(eqx.Module):
     friction_load: str = eqx.field(static=True, default="net")
     lambda_: jax.Array = eqx.field(converter=_numbers("model.lambda"), default=0.0)
     tangential: str = eqx.field(static=True, default="rigid")
+    normal: str = eqx.field(static=True, default="brach_dunn")
 
     def __check_init__(self):
+        if self.normal not in NORMAL_LAWS:
+            raise SceneError(
+                f"model.normal must be one of {', '.join(repr(n) for n in NORMAL_LAWS)}, got "
+                f"{self.normal!r} (JKR and Thornton-Ning are not in the engine yet: "
+                "docs/open_points.md)"
+            )
         if self.tangential not in TANGENTIAL_MODELS:
             raise SceneError(
                 f"model.tangential must be 'rigid' or 'mindlin', got {self.tangential!r}"
@@ -230,6 +247,7 @@ SCENE_ARRAYS = (
     ("contact", "C_H"),
     ("contact", "friction"),
     ("contact", "G_star"),
+    ("contact", "w"),
     ("model", "lambda_"),
 )
 

@@ -45,10 +45,22 @@ class ScaledParameters(eqx.Module):
     lam: jax.Array
     inertia: jax.Array  # k^2 = kappa r^2
     G_star: jax.Array | None = None  # only with the Mindlin tangential spring
+    w_adhesion: jax.Array | None = None  # only with the DMT normal law (a force per length)
 
     @staticmethod
     def from_si(
-        u: HertzUnits, *, radius, K, f0, C_A, C_H, friction, lam, inertia_factor, G_star=None
+        u: HertzUnits,
+        *,
+        radius,
+        K,
+        f0,
+        C_A,
+        C_H,
+        friction,
+        lam,
+        inertia_factor,
+        G_star=None,
+        w_adhesion=None,
     ):
         L, T, m = u.length, u.time, u.mass
         r = radius / L
@@ -62,4 +74,5 @@ class ScaledParameters(eqx.Module):
             lam=lam * T**2 / (m * L**2),
             inertia=inertia_factor * r * r,
             G_star=None if G_star is None else G_star * L * T**2 / m,
+            w_adhesion=None if w_adhesion is None else w_adhesion * T**2 / m,
         )

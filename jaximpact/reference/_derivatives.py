@@ -89,6 +89,8 @@ def output_derivatives(
     }  # fmt: skip
     if p.tangential == "mindlin":
         x0["G_star"] = p.G_star
+    if p.normal == "dmt":
+        x0["w"] = p.w
 
     def run(name, value):
         x = dict(x0, **{name: value})

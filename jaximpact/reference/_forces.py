@@ -44,7 +44,9 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
     out["F_H"] = -hertz
     out["F_HD"] = -hertz * p.C_H * ndot
     analytical = p.rolling_moments == "analytical"
-    if p.adhesion:
+    if p.adhesion and p.normal == "dmt":
+        out["F_A"] = 2.0 * math.pi * p.w * r
+    elif p.adhesion:
         out["F_A"] = 2.0 * math.pi * a * p.f0
         i0, i1 = ring_integrals(ndot, w * a if analytical else 0.0)
         out["F_AD"] = p.f0 * p.C_A * a * i0
@@ -61,10 +63,12 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
 
 
 def normal_potential(p: Params, n: float) -> float:
-    """V(n), the potential of F_H + F_A (zero out of contact)."""
+    """V(n), the potential of F_H + F_A (zero out of contact; continuous at 0 for DMT too)."""
     if not n > 0:
         return 0.0
     v = 0.4 * p.K * math.sqrt(p.radius) * n**2.5
-    if p.adhesion:
+    if p.adhesion and p.normal == "dmt":
+        v -= 2.0 * math.pi * p.w * p.radius * n
+    elif p.adhesion:
         v -= 4.0 / 3.0 * math.pi * p.f0 * math.sqrt(p.radius) * n**1.5
     return v

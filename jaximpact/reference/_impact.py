@@ -98,10 +98,10 @@ def _rigid_scales(model, p: Params, speed, v_n, v_t, w0, atol):
     """The state's scales ``S``, the overlap and time scales ``L`` and ``T``, and the absolute
     tolerances."""
     m, r = model.m, model.r
-    # Scales: overlap L (Hertz peak, or the adhesive equilibrium 2 pi f0 / K if larger), time T
+    # Scales: overlap L (Hertz peak, or the adhesive equilibrium overlap if larger), time T
     # (stiffness at overlap L), velocities V = L/T.
     n_star, _ = hertz_scales(p, v_n)
-    L = max(n_star, 2.0 * math.pi * p.f0 / p.K if p.adhesion else 0.0)
+    L = max(n_star, p.adhesive_overlap)
     T = math.sqrt(m / (p.K * math.sqrt(r) * math.sqrt(L)))
     V = L / T
     Vt = max(V, abs(v_t), r * abs(w0))

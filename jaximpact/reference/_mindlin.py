@@ -123,7 +123,7 @@ def _simulate_mindlin(
     v_n, v_t = speed * math.cos(th), speed * math.sin(th)
     w0 = float(omega0) if p.rotation else 0.0
     n_star, _ = hertz_scales(p, v_n)
-    L = max(n_star, 2.0 * math.pi * p.f0 / p.K if p.adhesion else 0.0)
+    L = max(n_star, p.adhesive_overlap)
     T = math.sqrt(m / (p.K * math.sqrt(r) * math.sqrt(L)))
     V = L / T
     Vt = max(V, abs(v_t), r * abs(w0))

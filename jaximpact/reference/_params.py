@@ -12,6 +12,9 @@ ROLLING_MOMENTS = ("none", "analytical", "lambda")
 FRICTION_LOADS = ("net", "hertz")
 
 
+NORMAL_LAWS = ("brach_dunn", "dmt")
+
+
 TABLE1_SPEED = 1.66  # m/s, the paper's reference impact speed
 
 
@@ -37,8 +40,12 @@ class Params:
     friction_load: str = "net"
     tangential: str = "rigid"  # or "mindlin": the elastic spring 8 G* a (see _MindlinModel)
     G_star: float = 0.0  # Pa, effective shear modulus (mindlin only)
+    normal: str = "brach_dunn"  # or "dmt": constant adhesion 2 pi w r in contact, no ring
+    w: float = 0.0  # J/m^2, work of adhesion (dmt only)
 
     def __post_init__(self):
+        if self.normal not in NORMAL_LAWS:
+            raise ValueError(f"normal must be one of {NORMAL_LAWS}")
         if self.tangential not in ("rigid", "mindlin"):
             raise ValueError("tangential must be 'rigid' or 'mindlin'")
         if self.tangential == "mindlin" and not self.G_star > 0:
@@ -50,9 +57,23 @@ class Params:
         for name in ("radius", "density", "K", "kappa"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
-        for name in ("f0", "C_A", "C_H", "friction", "lam"):
+        for name in ("f0", "C_A", "C_H", "friction", "lam", "w"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0")
+
+    @property
+    def ring(self) -> bool:
+        """The Brach-Dunn adhesion ring (force, damping, peeling moment) acts."""
+        return self.adhesion and self.normal == "brach_dunn"
+
+    @property
+    def adhesive_overlap(self) -> float:
+        """The overlap where the Hertz force balances the adhesion at rest (0 without it)."""
+        if not self.adhesion:
+            return 0.0
+        if self.normal == "dmt":
+            return (2.0 * math.pi * self.w * math.sqrt(self.radius) / self.K) ** (2.0 / 3.0)
+        return 2.0 * math.pi * self.f0 / self.K
 
     @property
     def mass(self) -> float:

@@ -125,7 +125,7 @@ class _Model:
         """Functions whose zeros are kinks of the right-hand side (not mode switches)."""
         p = self.p
         out = []
-        if p.adhesion and p.f0 * p.C_A > 0:
+        if p.ring and p.f0 * p.C_A > 0:
             if p.rolling_moments == "analytical":
                 out.append(lambda y: y[1] - y[3] * math.sqrt(self.r * max(y[0], 0.0)))
                 out.append(lambda y: y[1] + y[3] * math.sqrt(self.r * max(y[0], 0.0)))

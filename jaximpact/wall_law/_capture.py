@@ -65,6 +65,7 @@ SECTION_OF = {
     "C_H": ("contact", "C_H"),
     "friction": ("contact", "friction"),
     "G_star": ("contact", "G_star"),
+    "w": ("contact", "w"),
     "lambda": ("model", "lambda_"),
 }
 

@@ -216,7 +216,7 @@ def read_draws(path) -> dict:
     except Exception as err:  # not NetCDF, or no posterior group
         raise SceneError(f"{path}: not a draws file with a posterior group ({err})") from None
     with ds:
-        names = [k for k in ds.data_vars if k in PARAMETERS or k == "G_star"]
+        names = [k for k in ds.data_vars if k in PARAMETERS or k in ("G_star", "w")]
         if not names:
             have = ", ".join(map(str, ds.data_vars))
             raise SceneError(f"{path}: no draws of a scene parameter (it has {have})")

@@ -841,7 +841,7 @@ def _split(nodes, miss, tol: float, most: int) -> np.ndarray:
 def _uncertainty(simulate, scene, law, draws, max_draws, say) -> dict:
     """Capture probability and spread of ``cor_n`` per cell over posterior draws, each draw
     simulated at the table's speeds (those of the scene's own values)."""
-    names = [k for k in draws if k in PARAMETERS or k == "G_star"]
+    names = [k for k in draws if k in PARAMETERS or k in ("G_star", "w")]
     if not names:
         raise SceneError("draws: no scene parameter among " + ", ".join(map(str, draws)))
     columns = [np.asarray(draws[k], dtype=float).ravel() for k in names]

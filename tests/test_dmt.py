@@ -1,0 +1,208 @@
+"""The DMT normal law (``model.normal = "dmt"``): its force against the closed forms, elastic
+impacts against their energy balance, whole impacts against the exact switched reference, its
+derivatives against central differences of that reference, and the scene file's rules."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+import jaximpact as ji
+from jaximpact import reference as ref
+from jaximpact._engine.simulate import _scaled, required_terms, scene_parameters
+from jaximpact._model import dynamics as dyn
+from jaximpact._model import laws
+
+R, RHO, K = 35e-6, 8000.0, 11.4e10
+
+
+def dmt_scene(w=5.0, C_H=0.22, friction=0.3, moments="analytical", **model):
+    return ji.table1_scene().replace(
+        contact={"w": w, "f0": 0.0, "C_H": C_H, "friction": friction},
+        model={"normal": "dmt", "rolling_moments": moments, **model},
+    )
+
+
+def dmt_params(w=5.0, C_H=0.22, friction=0.3, moments="analytical"):
+    return ref.table1_params(
+        normal="dmt", w=w, f0=0.0, C_H=C_H, friction=friction, rolling_moments=moments
+    )
+
+
+def test_force_is_hertz_plus_the_constant_pull_off():
+    """In contact the force is Hertz plus ``2 pi w r`` whatever the overlap and speed; at zero
+    overlap the sphere is held by the DMT pull-off force ``2 pi w R`` (SI and Hertz units)."""
+    w = 0.7
+    n = jnp.array([1e-12, 1e-9, 3e-8, 2e-7])
+    got = laws.dmt_adhesion_force(n, R, w)
+    np.testing.assert_allclose(np.asarray(got), 2 * math.pi * w * R, rtol=1e-15)
+    scene = dmt_scene(w=w)
+    params = scene_parameters(scene)
+    terms = required_terms(scene, params, 30.0, 1e4)
+    assert terms.adhesion and not terms.ring
+    p, u = _scaled(params, 1.0, 30.0, 1e4)
+    y = {"n": jnp.array(0.3), "ndot": jnp.array(0.2), "vt": jnp.array(0.5), "w": jnp.array(0.1)}
+    f = dyn.contact_loads(terms, p, y)
+    hertz = -p.K * jnp.sqrt(p.radius) * 0.3**1.5
+    pull = 2 * math.pi * w * R / (u.mass * u.speed / u.time)  # N in Hertz units
+    np.testing.assert_allclose(float(f["F_A"]), pull, rtol=1e-12)
+    np.testing.assert_allclose(float(f["F_n"]), float(hertz * (1 + p.C_H * 0.2) + pull), rtol=1e-12)
+    # The peeling moment belongs to the ring: only the Hertzian moment acts.
+    assert float(f["M_A"]) == 0.0 and float(f["M_H"]) < 0.0
+    # The reference's force is the same law.
+    fc = ref.contact_forces(dmt_params(w=w), 1e-9, 0.01, 1e3)
+    assert fc["F_A"] == pytest.approx(2 * math.pi * w * R, rel=1e-15)
+    assert fc["F_AD"] == 0.0 and fc["M_A"] == 0.0
+
+
+def test_elastic_impact_conserves_energy_and_reaches_the_closed_form_overlap():
+    """Without damping or friction a DMT impact is elastic (the constant force does as much work
+    on the way in as on the way out): ``cor_n = 1``; its largest overlap solves
+    ``(2/5) K sqrt(r) n^2.5 - 2 pi w r n = m v^2 / 2``."""
+    w = 2.0
+    scene = dmt_scene(w=w, C_H=0.0, friction=0.0, moments="none")
+    speeds = np.array([0.003, 0.05, 1.0, 10.0])
+    res = ji.simulate(scene, speeds, 0.0, 0.0)
+    mass = RHO * 4 / 3 * math.pi * R**3
+    assert np.all(np.asarray(res.status) == ji.Status.REBOUND)
+    np.testing.assert_allclose(np.asarray(res.cor_n), 1.0, atol=1e-8)
+    for v, got in zip(speeds, np.asarray(res.max_overlap), strict=True):
+
+        def balance(n, v=v):
+            return 0.4 * K * math.sqrt(R) * n**2.5 - 2 * math.pi * w * R * n - 0.5 * mass * v * v
+
+        want = brentq(balance, 1e-15, 1e-3, xtol=1e-30, rtol=1e-15)
+        assert got == pytest.approx(want, rel=1e-7), v
+
+
+def test_zero_work_of_adhesion_is_the_hertz_law():
+    """``w = 0`` compiles no adhesion, and gives the Brach-Dunn law without adhesion exactly."""
+    dmt = dmt_scene(w=0.0)
+    bd = ji.table1_scene().replace(contact={"f0": 0.0, "C_H": 0.22}, model={"adhesion": False})
+    args = (np.array([0.1, 1.0, 3.0]), np.array([0.0, 30.0, -60.0]), np.array([0.0, 1e4, 3e4]))
+    a, b = ji.simulate(dmt, *args), ji.simulate(bd, *args)
+    for k in ("cor_n", "vt_out", "omega_out", "contact_time", "loss_friction"):
+        np.testing.assert_array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k)), k)
+
+
+# Rebounds and captures on both sides of the capture speed, oblique and spinning.
+CASES = [
+    (5.0, 0.22, "analytical"),
+    (0.5, 2.0, "none"),
+    (50.0, 0.5, "lambda"),
+]
+
+
+@pytest.mark.parametrize("w, C_H, moments", CASES)
+def test_impacts_match_the_exact_reference(w, C_H, moments):
+    """Whole impacts against the switched, event-located reference (rtol 1e-12): every status
+    the same, velocities and spin within 1e-7 of the speed, the ledger closed."""
+    scene = dmt_scene(w=w, C_H=C_H, moments=moments)
+    p = dmt_params(w=w, C_H=C_H, moments=moments)
+    if moments == "lambda":
+        scene = scene.replace(model={"lambda_": 1e-9})
+        p = ref.Params(**{**p.__dict__, "lam": 1e-9})
+    rng = np.random.default_rng(17)
+    speeds = np.geomspace(1e-3, 5.0, 10)
+    angles = rng.uniform(-70, 70, speeds.size)
+    angles[0] = 0.0
+    omega0 = rng.uniform(-0.3, 0.3, speeds.size) * speeds / R
+    res = ji.simulate(scene, speeds, angles, omega0)
+    statuses = {"rebound": ji.Status.REBOUND, "captured": ji.Status.CAPTURED}
+    seen = set()
+    for i, v in enumerate(speeds):
+        q = ref.simulate_impact(p, v, angles[i], omega0[i], rtol=1e-12)
+        assert int(res.status[i]) == statuses[q.status], (v, angles[i])
+        seen.add(q.status)
+        if q.status == "rebound":
+            assert float(res.vn_out[i]) == pytest.approx(q.vn_out, abs=1e-7 * v)
+        assert float(res.vt_out[i]) == pytest.approx(q.vt_out, abs=1e-7 * v)
+        assert float(res.omega_out[i]) * R == pytest.approx(q.omega_out * R, abs=1e-7 * v)
+        losses = sum(
+            float(getattr(res, k)[i])
+            for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
+        )
+        e_in, e_out = float(res.energy_in[i]), float(res.energy_out[i])
+        # Slow impacts exchange far more energy with the adhesion than they bring in.
+        exchanged = e_in + 2 * math.pi * w * R * float(res.max_overlap[i])
+        assert abs(e_in - e_out - losses) < 1e-7 * exchanged
+        assert float(res.loss_adhesion_damping[i]) == 0.0  # no ring, no adhesion damping
+    assert seen == {"rebound", "captured"} or moments != "analytical"
+
+
+def test_derivatives_match_central_differences_of_the_reference():
+    """``d/dw`` and ``d/dC_H`` (with the impact's inputs) of a spinning oblique rebound, from
+    ``output_jacobian``, against the reference's Richardson-checked central differences."""
+    scene, p = dmt_scene(w=2.0), dmt_params(w=2.0)
+    speed, angle, omega0 = 0.4, 35.0, 0.1 * 0.4 / R
+    inputs = ("w", "C_H", "friction", "speed", "angle_deg")
+    jac = ji.output_jacobian(scene, speed, angle, omega0, inputs=inputs)
+    exact, err = ref.output_derivatives(p, speed, angle, omega0, inputs=inputs)
+    x = {"w": 2.0, "C_H": 0.22, "friction": 0.3, "speed": speed, "angle_deg": 180 / math.pi}
+    scale_out = {"cor_n": 1.0, "vt_out": speed, "omega_out": speed / R}
+    for out, s_out in scale_out.items():
+        for j, name in enumerate(inputs):
+            want = exact[out][name] * x[name] / s_out
+            assert err[out][name] * x[name] / s_out < 1e-5, (out, name)
+            got = float(jac[out][0, j]) * x[name] / s_out
+            assert got == pytest.approx(want, abs=1e-4), (out, name)
+
+
+def test_batch_does_not_change_a_lane():
+    """An impact gives bitwise the same result alone and inside a batch of other impacts."""
+    scene = dmt_scene(w=5.0)
+    speeds = np.array([0.02, 0.05, 0.3, 2.0])
+    angles = np.array([0.0, 40.0, -20.0, 60.0])
+    omega0 = np.array([0.0, 2e4, -1e4, 0.0])
+    batch = ji.simulate(scene, speeds, angles, omega0)
+    for i in (0, 2):
+        alone = ji.simulate(scene, speeds[i : i + 1], angles[i : i + 1], omega0[i : i + 1])
+        for k in ("cor_n", "vt_out", "omega_out", "contact_time"):
+            a, b = np.asarray(getattr(alone, k))[0], np.asarray(getattr(batch, k))[i]
+            assert a == b or (np.isnan(a) and np.isnan(b)), (k, i)
+
+
+def test_jax_grad_in_w_through_simulate():
+    """``jax.grad`` of a rebound's ``cor_n`` in ``w`` is finite and agrees with ``jax.jacfwd``."""
+
+    def cor(w):
+        scene = dmt_scene(w=w)
+        return ji.simulate(scene, 0.3, 20.0, 0.0).cor_n
+
+    g = jax.grad(cor)(2.0)
+    f = jax.jacfwd(cor)(2.0)
+    assert np.isfinite(float(g)) and float(g) == pytest.approx(float(f), rel=1e-6)
+
+
+def _write(tmp_path, text):
+    path = tmp_path / "scene.toml"
+    path.write_text(text)
+    return path
+
+
+BASE = """
+[particle]
+radius = 35e-6
+density = 8000.0
+[contact]
+K = 11.4e10
+C_H = 0.22
+friction = 0.3
+"""
+
+
+def test_scene_file_selects_the_law_and_names_wrong_keys(tmp_path):
+    scene = ji.load_scene(_write(tmp_path, BASE + 'w = 0.5\n[model]\nnormal = "dmt"\n'))
+    assert scene.model.normal == "dmt" and scene.model.adhesion
+    assert float(scene.contact.w) == 0.5
+    with pytest.raises(ji.SceneError, match="contact.f0 is the adhesion ring"):
+        ji.load_scene(_write(tmp_path, BASE + 'f0 = 3.0\nw = 0.5\n[model]\nnormal = "dmt"\n'))
+    with pytest.raises(ji.SceneError, match='contact.w .* only with model.normal = "dmt"'):
+        ji.load_scene(_write(tmp_path, BASE + "w = 0.5\n"))
+    with pytest.raises(ji.SceneError, match="model.normal must be one of"):
+        ji.load_scene(_write(tmp_path, BASE + '[model]\nnormal = "hooke"\n'))
+    with pytest.raises(ji.SceneError, match=r"contact.w must be finite and in \[0, 1e4\]"):
+        ji.load_scene(_write(tmp_path, BASE + 'w = -1.0\n[model]\nnormal = "dmt"\n'))
