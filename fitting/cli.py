@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 __all__ = ["add_fit_command", "cmd_fit"]
 
@@ -132,7 +133,9 @@ def _add_posterior_options(p) -> None:
         metavar="SCENE[=PARAMS]",
         help="also fit and sample each of these scenes (embedded name or TOML file) on the same "
         "data with the same options, then compare all the models by PSIS-LOO (ArviZ); "
-        "=PARAMS: that scene's own fitted parameters as a comma list (default: --params)",
+        "=PARAMS: that scene's own fitted parameters as a comma list (default: --params); "
+        "a normal law (brach_dunn, dmt, jkr; a comma list) is the scene with that law, f0 and "
+        "w swapped in the fitted names",
     )
     g.add_argument(
         "--compare-plot", metavar="FILE.png", help="each compared model's band against the data"
@@ -478,25 +481,46 @@ def _sample(args, scene, names, priors, result):
 
 def _compared_models(args, names, scene_path) -> dict:
     """``--compare``: ``{label: (scene, fitted names, priors)}`` of each other model, every
-    scene read and every name checked before any computing (bad input: ``ValueError``)."""
+    scene read and every name checked before any computing (bad input: ``ValueError``).
+
+    An item that names a normal law (``brach_dunn``, ``dmt``, ``jkr``; several may be given as
+    one comma list) is the fitted scene with that law (``Scene.with_normal_law``) and the fitted
+    names carried over (:func:`_law_names`); the fitted scene's own law is not fitted twice."""
     import jaximpact
+    from jaximpact._model.scene import NORMAL_LAWS
 
     from ._bayesian.priors import priors_for
     from ._least_squares.objective import FITTABLE, FitError, check_names
 
-    out = {}
+    items = []
     for item in args.compare:
+        if "=" not in item and "," in item:
+            items += [x.strip() for x in item.split(",") if x.strip()]
+        else:
+            items.append(item)
+    base = None
+    out = {}
+    for item in items:
         label, sep, own = item.partition("=")
         label = label.strip()
         if not label:
             raise FitError(f"--compare expects SCENE or SCENE=NAME[,NAME...], got {item!r}")
+        law = label in NORMAL_LAWS and not Path(label).exists()
+        if law:
+            base = base or jaximpact.load_scene(scene_path)
+            if label == base.model.normal:
+                continue  # the fitted scene is that law
         if label in out or label == (scene_path or "table1"):
             raise FitError(f"--compare {label}: the same model twice")
         try:
-            model_names = check_names(split_names("--compare", [own], FITTABLE)) if sep else names
+            if sep:
+                model_names = check_names(split_names("--compare", [own], FITTABLE))
+            else:
+                model_names = _law_names(names, base.model.normal, label) if law else names
         except FitError as err:
             raise FitError(f"--compare {item}: {err}") from None
-        scene = jaximpact.load_scene(label)
+        scene = base.with_normal_law(label) if law else jaximpact.load_scene(label)
+        check_names(model_names, scene)
         # --prior applies to each model that fits that parameter
         priors = _parse_priors(
             [p for p in args.prior if p.partition("=")[0].strip() in model_names], model_names
@@ -504,6 +528,23 @@ def _compared_models(args, names, scene_path) -> dict:
         priors_for(model_names, priors, scene.priors)
         out[label] = (scene, model_names, priors)
     return out
+
+
+def _law_names(names, law, other) -> tuple:
+    """The fitted names of one normal law carried to another: ``f0`` and ``w`` swap; ``C_A``
+    (the ring's damping) is dropped for DMT and JKR, and fitted with Brach-Dunn's ``f0`` when
+    the adhesion was fitted."""
+    out = []
+    for name in names:
+        if name == "f0" and other != "brach_dunn":
+            out.append("w")
+        elif name == "w" and other == "brach_dunn":
+            out += ["f0"] + ([] if "C_A" in names else ["C_A"])
+        elif name == "C_A" and other != "brach_dunn":
+            continue
+        else:
+            out.append(name)
+    return tuple(dict.fromkeys(out))
 
 
 def _fit_compare(args, posteriors, alternatives, data_path, document, outputs, drawn) -> list:

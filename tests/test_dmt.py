@@ -123,7 +123,12 @@ def test_impacts_match_the_exact_reference(w, C_H, moments):
         assert float(res.omega_out[i]) * R == pytest.approx(q.omega_out * R, abs=1e-7 * v)
         losses = sum(
             float(getattr(res, k)[i])
-            for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
+            for k in (
+                "loss_hertz_damping",
+                "loss_adhesion_damping",
+                "loss_friction",
+                "loss_rolling",
+            )
         )
         e_in, e_out = float(res.energy_in[i]), float(res.energy_out[i])
         # Slow impacts exchange far more energy with the adhesion than they bring in.

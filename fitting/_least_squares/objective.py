@@ -130,13 +130,15 @@ def check_names(params: Sequence[str], scene: jaximpact.Scene | None = None) -> 
             f'G_star is used only with model.tangential = "mindlin" (the scene has '
             f'"{scene.model.tangential}"); e.g. the embedded scene kharaz2001_mindlin'
         )
-    if scene is not None and "w" in params and scene.model.normal != "dmt":
+    if scene is not None and "w" in params and scene.model.normal == "brach_dunn":
         raise FitError(
-            f'w (work of adhesion) is used only with model.normal = "dmt" (the scene has '
-            f'"{scene.model.normal}"); the Brach-Dunn ring takes f0'
+            'w (work of adhesion) is used only with model.normal = "dmt" or "jkr" (the scene '
+            'has "brach_dunn"); the Brach-Dunn ring takes f0'
         )
-    if scene is not None and "f0" in params and scene.model.normal == "dmt":
-        raise FitError('f0 is the Brach-Dunn ring\'s; the DMT law (model.normal = "dmt") takes w')
+    if scene is not None and "f0" in params and scene.model.normal != "brach_dunn":
+        raise FitError(
+            f"f0 is the Brach-Dunn ring's; the {scene.model.normal} law takes w (work of adhesion)"
+        )
     return params
 
 

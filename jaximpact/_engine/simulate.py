@@ -56,7 +56,7 @@ def scene_parameters(scene: Scene) -> dict:
     }
     if scene.model.tangential == "mindlin":
         params["G_star"] = scene.contact.G_star
-    if scene.model.normal == "dmt":
+    if scene.model.normal in ("dmt", "jkr"):
         params["w"] = scene.contact.w
     return params
 
@@ -91,7 +91,7 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
             "contact.G_star (model.tangential = 'mindlin')", params["G_star"], positive=True
         )
     tangential = not _all([angle_deg, omega0], lambda v: v == 0)
-    strength = params["w"] if m.normal == "dmt" else params["f0"]
+    strength = params["f0"] if m.normal == "brach_dunn" else params["w"]
     adhesion = m.adhesion and not _all([strength], lambda v: v == 0)
     moments = m.rolling_moments
     if moments == "lambda" and _all([params["lambda"]], lambda v: v == 0):
@@ -207,6 +207,53 @@ def _shell_entry(terms: dyn.Terms, p: ScaledParameters, dtype) -> dict:
     return shell
 
 
+# Hertz times after first touch at which an impact below the JKR sticking speed is declared
+# captured (the state is then the state at first touch to ~1e-10).
+JKR_STUCK_TIME = 1e-10
+
+
+def _jkr_stuck(terms: dyn.Terms, p: ScaledParameters):
+    """Captured at first touch: the JKR barrier ``V(n_c)`` exceeds the normal energy ``1/2``."""
+    _, a_c = dyn.jkr_snap_off(p)
+    return laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion) > 0.5
+
+
+def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
+    """The last stretch of a JKR contact, from the separation level ``mu (d_c + floor)`` down
+    to the snap-off overlap ``n_c``, in closed form: the potential's change there is exact
+    (``V`` is closed-form), the Hertzian damping's work is taken at the mean of the Hertzian
+    force at the two ends and the crossing speed. At the snap-off the sphere leaves the
+    contact, and the barrier ``V(n_c)`` (the elastic JKR loss, ``c_W (w^5 R^4/E^2)^(1/3)``) is
+    the ledger's ``loss_adhesion_damping``."""
+    n_sep = dyn.separation(terms, p)
+    n_c, a_c = dyn.jkr_snap_off(p)
+    a_sep = dyn.jkr_contact_radius(terms, p, jnp.full_like(ndot, n_sep))
+    barrier = laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion)
+    climb = barrier - laws.jkr_potential(a_sep, p.radius, p.K, p.w_adhesion)
+    width = n_sep - n_c
+    speed = jnp.abs(ndot)
+    hertz = -0.5 * (
+        laws.jkr_hertz_force(a_sep, p.radius, p.K) + laws.jkr_hertz_force(a_c, p.radius, p.K)
+    )
+    damping = hertz * p.C_H * speed * width
+    energy = ndot**2 - 2.0 * (climb + damping)
+    shell = {"loss_hertz_damping": damping, "loss_adhesion_damping": barrier}
+    shell["peak"] = jnp.zeros_like(ndot)
+    shell["ok"] = energy > 0
+    out_speed = jnp.sqrt(jnp.where(shell["ok"], energy, 1.0))
+    shell["ndot"] = -out_speed
+    shell["time"] = 2.0 * width / (speed + out_speed)
+    # |integral of the friction load over n| across the stretch (for its tangential impulse)
+    adhesive = 0.5 * (
+        laws.jkr_adhesion_force(a_sep, p.K, p.w_adhesion)
+        + laws.jkr_adhesion_force(a_c, p.K, p.w_adhesion)
+    )
+    net = jnp.abs(adhesive - hertz * (1.0 + p.C_H * ndot)) * width
+    shell["load_work"] = net if terms.friction_load == "net" else hertz * width
+    shell["width"] = width
+    return shell
+
+
 def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot, spring=None) -> dict:
     """The separation through the shell below the floor, in closed form (see ``_shell_entry``).
 
@@ -215,6 +262,8 @@ def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot, spring=None) -> dic
     ``spring``: the Mindlin spring's energy at the floor, which its normal force returns to the
     normal motion in the shell (its tangential impulse there, ``O(floor^2.5)``, is left out).
     """
+    if terms.jkr:
+        return _jkr_exit(terms, p, ndot)
     eps = terms.contact_floor
     sr = jnp.sqrt(p.radius)
     speed = jnp.abs(ndot)
@@ -259,7 +308,9 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
     eps = terms.contact_floor
     sr = jnp.sqrt(p.radius)
     hertz = 0.4 * p.K * sr * eps**2.5
-    if terms.friction_load == "net":
+    if terms.jkr:  # the exit stretch of a JKR contact (``_jkr_exit``)
+        load, eps = shell["load_work"], shell["width"]
+    elif terms.friction_load == "net":
         load = -hertz * (1.0 + p.C_H * ndot)
         if terms.adhesion:
             adhesion, damping = _shell_adhesion(terms, p)
@@ -325,13 +376,20 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
     v_n, v_t = speed * jnp.cos(theta), speed * jnp.sin(theta)
     y0 = dyn.initial_state(terms, v_t / v_n, omega0 * u.time, dtype)
     floor = terms.contact_floor
-    entry = _shell_entry(terms, p, dtype)
-    y0["n"] = jnp.asarray(floor, dtype)
-    y0["ndot"] = entry["ndot"]
+    if terms.jkr:  # smooth at first touch: the solve starts there
+        entry = {"ndot": y0["ndot"], "time": jnp.zeros((), dtype), "peak": jnp.zeros((), dtype)}
+        entry["loss_hertz_damping"] = entry["loss_adhesion_damping"] = entry["time"]
+        y0["n"] = jnp.zeros((), dtype)
+    else:
+        entry = _shell_entry(terms, p, dtype)
+        y0["n"] = jnp.asarray(floor, dtype)
+        y0["ndot"] = entry["ndot"]
     if terms.mindlin:
         y0["xi"] = _shell_spring(terms, p, y0, entry)
     entry_friction = None
-    if terms.tangential and not terms.mindlin:
+    if terms.tangential and not terms.mindlin and terms.jkr:
+        entry_friction = {"loss_friction": jnp.zeros((), dtype)}
+    elif terms.tangential and not terms.mindlin:
         entry_friction = _shell_friction(terms, p, y0, entry, entry["ndot"])
         for k in ("vt", "w"):
             if k in y0:
@@ -340,7 +398,16 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
     # whose rounding depends on the batch): the overlap reaches the contact floor
     # (separation), or, with adhesion, the normal energy reaches zero (capture; scaled to
     # order one by ``capture_margin`` so that the root finder's tolerance is meaningful).
-    if terms.adhesion:
+    if terms.jkr:
+        # Below the elastic sticking speed the sphere cannot climb the snap-off barrier even
+        # without losses: captured at first touch (the event fires at JKR_STUCK_TIME).
+        def cond(t, y, args, **kw):
+            free = jnp.minimum(
+                y["n"] - dyn.separation(terms, args), dyn.capture_margin(terms, args, y)
+            )
+            return jnp.where(_jkr_stuck(terms, args), JKR_STUCK_TIME - t, free)
+
+    elif terms.adhesion:
         cond = lambda t, y, args, **kw: jnp.minimum(  # noqa: E731
             y["n"] - floor, dyn.capture_margin(terms, args, y)
         )
@@ -453,7 +520,6 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     rebound, the entry shell's contributions added), its time and its status code."""
     p, entry = prob.p, prob.entry
     entry_friction = prob.entry_friction
-    floor = terms.contact_floor
     y = jax.tree_util.tree_map(lambda x: x[-1], sol.ys)
     t_end = sol.ts[-1]
 
@@ -464,7 +530,10 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     if terms.adhesion:
         # At the event one of the two is ~0 and the other positive. A sphere whose normal
         # energy runs out inside the shell below the floor is captured too.
-        captured = event_hit & ((y["n"] - floor > dyn.capture_margin(terms, p, y)) | ~exit_["ok"])
+        separation = dyn.separation(terms, p)
+        captured = event_hit & (
+            (y["n"] - separation > dyn.capture_margin(terms, p, y)) | ~exit_["ok"]
+        )
     else:
         captured = False
     separated = event_hit & ~captured

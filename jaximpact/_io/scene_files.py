@@ -265,14 +265,16 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
         if key in m and not isinstance(m[key], str):
             raise SceneError(f"model.{key} must be a string, got {m[key]!r}")
     normal = m.get("normal", "brach_dunn")
-    if normal == "dmt" and "f0" in c:
+    if normal != "brach_dunn" and "f0" in c:
         raise SceneError(
-            'contact.f0 is the adhesion ring of model.normal = "brach_dunn"; the DMT law takes '
-            "the work of adhesion contact.w (J/m^2)"
+            f'contact.f0 is the adhesion ring of model.normal = "brach_dunn"; the {normal} law '
+            "takes the work of adhesion contact.w (J/m^2)"
         )
-    if normal != "dmt" and "w" in c:
-        raise SceneError('contact.w (work of adhesion) is used only with model.normal = "dmt"')
-    strength = contact.w if normal == "dmt" else contact.f0
+    if normal == "brach_dunn" and "w" in c:
+        raise SceneError(
+            'contact.w (work of adhesion) is used only with model.normal = "dmt" or "jkr"'
+        )
+    strength = contact.f0 if normal == "brach_dunn" else contact.w
     model = Model(
         rotation=m.get("rotation", True),
         adhesion=m.get("adhesion", bool(strength > 0)),

@@ -79,8 +79,10 @@ def _particle_and_contact(scene, raw: dict, r, rho, K, mass) -> list[str]:
     else:
         origin = "given"
     lines.append(f"  K                   {_g(K)} Pa  ({origin})")
-    if m.normal == "dmt":
-        pull_off = "work of adhesion; DMT pull-off 2 pi w r"
+    if m.normal != "brach_dunn":
+        pull_off = "work of adhesion; pull-off " + (
+            "2 pi w r (DMT)" if m.normal == "dmt" else "1.5 pi w r (JKR)"
+        )
         lines.append(f"  w                   {_g(c.w)} J/m^2  ({pull_off})")
     else:
         lines.append(f"  f0                  {_g(c.f0)} N/m")
@@ -170,15 +172,19 @@ def _terms_lines(terms, m) -> list[str]:
     lines = []
     used, left = [], []
     used.append("normal: Hertz force, Hertz damping")
-    strength = "w = 0" if m.normal == "dmt" else "f0 = 0"
+    strength = "f0 = 0" if m.normal == "brach_dunn" else "w = 0"
     if terms.ring:
         used.append("adhesion ring force and adhesion damping")
+    elif terms.jkr:
+        used.append("JKR adhesion (contact until the snap-off overlap; its loss in the ledger)")
     elif terms.adhesion:
         used.append("DMT adhesion 2 pi w r (constant in contact, undamped)")
     else:
         left.append("adhesion (" + ("model.adhesion = false" if not m.adhesion else strength) + ")")
-    if m.normal == "dmt":
-        left.append('adhesion ring, its damping and peeling moment M_A (model.normal = "dmt")')
+    if m.normal != "brach_dunn":
+        left.append(
+            f'adhesion ring, its damping and peeling moment M_A (model.normal = "{m.normal}")'
+        )
     if terms.mindlin:
         used.append(
             f"Mindlin tangential spring 8 G* a, capped by friction ({m.friction_load} normal load)"

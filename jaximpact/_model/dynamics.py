@@ -20,6 +20,8 @@ fusion of the smaller step recomputes more (25,200 against 23,000 compiled opera
 20,000 oblique spinning impacts, 2026-11-25.
 """
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -48,7 +50,8 @@ class Terms(eqx.Module):
     # friction law; cap_width is its regularization width at the Coulomb cap (fraction of it).
     mindlin: bool = eqx.field(static=True, default=False)
     cap_width: float = eqx.field(static=True, default=0.0)
-    # model.normal: "brach_dunn" (the adhesion ring) or "dmt" (constant adhesion 2 pi w r).
+    # model.normal: "brach_dunn" (the adhesion ring), "dmt" (constant adhesion 2 pi w r) or
+    # "jkr" (the JKR force of the contact radius; contact until the snap-off overlap n_c < 0).
     normal: str = eqx.field(static=True, default="brach_dunn")
 
     @property
@@ -60,11 +63,21 @@ class Terms(eqx.Module):
         """The Brach-Dunn adhesion ring, with its damping and peeling moment, is compiled."""
         return self.adhesion and self.normal == "brach_dunn"
 
+    @property
+    def jkr(self):
+        """The JKR law (with ``w = 0`` it is Hertz's, and Hertz's terms are compiled)."""
+        return self.adhesion and self.normal == "jkr"
+
+    @property
+    def adhesion_loss(self):
+        """The ledger's ``loss_adhesion_damping``: the ring's damping, or JKR's snap-off loss."""
+        return self.ring or self.jkr
+
 
 def initial_state(terms: Terms, vt0, w0, dtype):
     zero = jnp.zeros((), dtype)
     y = {"n": zero, "ndot": jnp.ones((), dtype), "peak": zero, "loss_hertz_damping": zero}
-    if terms.ring:
+    if terms.adhesion_loss:
         y["loss_adhesion_damping"] = zero
     if terms.tangential:
         y.update(vt=jnp.asarray(vt0, dtype), loss_friction=zero, slide_time=zero)
@@ -83,18 +96,50 @@ MOTION = ("n", "ndot", "vt", "w", "xi")
 
 
 def adhesion_potential(terms: Terms, p: ScaledParameters, n):
-    """The potential energy of the normal law's adhesion force (``<= 0`` in contact)."""
+    """The potential energy of the normal law's adhesion force (``<= 0`` in contact; not for
+    JKR, whose potential is one expression: :func:`normal_potential`)."""
     if terms.normal == "dmt":
         return laws.dmt_potential(n, p.radius, p.w_adhesion)
     return laws.adhesion_potential(n, p.radius, p.f0)
 
 
-def normal_energy(terms: Terms, p: ScaledParameters, y):
-    """``ndot^2/2 + V(n)``: it never increases without spin, and ``< 0`` means capture."""
-    e = 0.5 * y["ndot"] ** 2 + laws.hertz_potential(y["n"], p.radius, p.K)
+def jkr_contact_radius(terms: Terms, p: ScaledParameters, n):
+    """The JKR contact radius (continued below the separation level, see ``separation``)."""
+    E = 0.75 * p.K
+    return laws.jkr_contact_radius(n, p.radius, E, p.w_adhesion, terms.contact_floor)
+
+
+def jkr_snap_off(p: ScaledParameters):
+    """``(n_c, a_c)``: the JKR snap-off overlap (< 0) and contact radius."""
+    lam, mu = laws.jkr_scales(p.radius, 0.75 * p.K, p.w_adhesion)
+    return laws.JKR_SNAP_OFF * mu, lam * math.pi ** (1.0 / 3.0) / 2.0
+
+
+def separation(terms: Terms, p: ScaledParameters):
+    """The overlap at which the integration stops for a separation: the contact floor, or
+    with JKR the floor above the snap-off, ``mu (d_c + floor)``; a closed form crosses the
+    rest (``simulate._shell_exit``)."""
+    if terms.jkr:
+        _, mu = laws.jkr_scales(p.radius, 0.75 * p.K, p.w_adhesion)
+        return mu * (laws.JKR_SNAP_OFF + terms.contact_floor)
+    return terms.contact_floor
+
+
+def normal_potential(terms: Terms, p: ScaledParameters, n):
+    """``V(n)``, the potential of the elastic and adhesive normal forces (0 at first touch)."""
+    if terms.jkr:
+        a = jkr_contact_radius(terms, p, n)
+        return laws.jkr_potential(a, p.radius, p.K, p.w_adhesion)
+    v = laws.hertz_potential(n, p.radius, p.K)
     if terms.adhesion:
-        e = e + adhesion_potential(terms, p, y["n"])
-    return e
+        v = v + adhesion_potential(terms, p, n)
+    return v
+
+
+def normal_energy(terms: Terms, p: ScaledParameters, y):
+    """``ndot^2/2 + V(n)``: it never increases without spin, and ``< 0`` means capture
+    (JKR: below the snap-off barrier ``V(n_c) > 0``)."""
+    return 0.5 * y["ndot"] ** 2 + normal_potential(terms, p, y["n"])
 
 
 def capture_margin(terms: Terms, p: ScaledParameters, y):
@@ -107,6 +152,11 @@ def capture_margin(terms: Terms, p: ScaledParameters, y):
     0.02-0.3 m/s; issue 12). Relative to the terms' sizes the noise is a few ulp.
     """
     kinetic = 0.5 * y["ndot"] ** 2
+    if terms.jkr:  # the barrier V(n_c) a leaving sphere must still climb
+        _, a_c = jkr_snap_off(p)
+        barrier = laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion)
+        v = normal_potential(terms, p, y["n"])
+        return (kinetic + v - barrier) / (kinetic + jnp.abs(v) + barrier)
     hertz = laws.hertz_potential(y["n"], p.radius, p.K)
     adhesion = adhesion_potential(terms, p, y["n"])  # <= 0
     return (kinetic + hertz + adhesion) / (kinetic + hertz - adhesion)
@@ -137,7 +187,15 @@ def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w):
     f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
     F_n = f["F_H"] + f["F_HD"]
     M_A = None
-    if terms.adhesion and terms.normal == "dmt":  # no ring: no damping, no peeling moment
+    if terms.jkr:  # the Hertzian part (damped as Hertz's force) and the adhesive part
+        a = jkr_contact_radius(terms, p, n)
+        f["a"] = a
+        f["F_H"] = laws.jkr_hertz_force(a, p.radius, p.K)
+        f["F_HD"] = f["F_H"] * p.C_H * ndot
+        f["F_A"] = laws.jkr_adhesion_force(a, p.K, p.w_adhesion)
+        F_n = f["F_H"] + f["F_HD"] + f["F_A"]
+        M_A = jnp.zeros_like(n)
+    elif terms.adhesion and terms.normal == "dmt":  # no ring: no damping, no peeling moment
         f["F_A"] = laws.dmt_adhesion_force(n, p.radius, p.w_adhesion)
         F_n = F_n + f["F_A"]
         M_A = jnp.zeros_like(n)
@@ -173,10 +231,16 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
         return f
     M = jnp.zeros_like(n)
     if terms.has_moments:
-        if terms.rolling_moments == "analytical":
+        if terms.rolling_moments == "analytical" and terms.jkr:
+            f["M_H"] = laws.jkr_rolling_moment(f["a"], w, p.radius, p.K, p.C_H)
+            f["M_A"] = M_A
+            M = f["M_H"]
+        elif terms.rolling_moments == "analytical":
             f["M_H"] = laws.hertz_rolling_moment(n, w, p.radius, p.K, p.C_H)
             f["M_A"] = M_A if terms.adhesion else jnp.zeros_like(n)
             M = f["M_A"] + f["M_H"]
+        elif terms.jkr:
+            M = -p.lam * p.C_A * f["a"] * w
         else:
             M = laws.lambda_moment(n, w, p.radius, p.C_A, p.lam, terms.contact_floor)
         f["M_roll"] = M
@@ -252,6 +316,8 @@ class ImpactField(eqx.Module):
         }
         if terms.ring:
             dy["loss_adhesion_damping"] = -f["F_AD"] * ndot
+        elif terms.adhesion_loss:  # JKR: its snap-off loss is added at the separation
+            dy["loss_adhesion_damping"] = jnp.zeros_like(ndot)
         if terms.tangential:
             dy["vt"] = f["F_t"]
             if terms.mindlin:

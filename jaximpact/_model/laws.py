@@ -7,6 +7,8 @@ positive toward the surface, the spin ``w`` is signed so that ``tdot == r*w`` is
 the slip is ``s = tdot - r*w``. Every law is zero for ``n <= 0`` (free flight).
 """
 
+import math
+
 import jax.numpy as jnp
 
 from .safe import safe_pow, safe_sqrt, smooth_sign_flat, smooth_step_flat
@@ -193,3 +195,111 @@ def mindlin_slip_rate(xi, slip, load_limit, k_t, cap_rate, cap_width, slip_width
     direction = jnp.sign(xi)
     drive = slip * direction - cap_rate
     return direction * phi * 0.5 * (drive + jnp.sqrt(drive * drive + slip_width * slip_width))
+
+
+# --- JKR (Johnson, Kendall & Roberts 1971) -------------------------------------------------
+# With ``E = 3 K / 4`` (the project's K is 4 E*/3) and ``w`` the work of adhesion, the contact
+# radius ``a`` and overlap ``n`` of the stable branch are tied by ``n = a^2/r - sqrt(2 pi w a/E)``
+# and the force is ``P = K a^3/r - sqrt(6 pi w K a^3)`` (repulsive positive). In the scales
+# ``a = lam u^2``, ``n = mu d`` (``lam = (w r^2/E)^(1/3)``, ``mu = (w^2 r/E^2)^(1/3)``):
+# ``u^4 - sqrt(2 pi) u = d``, solved in closed form through the resolvent cubic
+# ``m^3 + d m - pi/4 = 0``: ``u = (sqrt(2 m) + sqrt(s))/2`` with ``s = 2 sqrt(pi/m) - 2 m``
+# (docs/physics.md, "Normal laws"). The branch ends at the snap-off overlap
+# ``d_c = -(3/4) pi^(2/3)`` (``m = pi^(1/3)``, ``s = 0``), where ``a`` has a square-root
+# singularity; the cubic's root is smooth there.
+
+JKR_SNAP_OFF = -0.75 * math.pi ** (2.0 / 3.0)  # snap-off overlap over mu
+JKR_TOUCH = (2.0 * math.pi) ** (1.0 / 3.0)  # a / lam at zero overlap (snap-in)
+
+
+def jkr_scales(radius, E, w):
+    """``(lam, mu)``: the JKR scales of contact radius and overlap."""
+    return (w * radius * radius / E) ** (1.0 / 3.0), (w * w * radius / (E * E)) ** (1.0 / 3.0)
+
+
+def _jkr_cubic_root(d):
+    """The real root ``m > 0`` of ``m^3 + d m - pi/4 = 0`` for ``d >= d_c`` (stable forms: the
+    hyperbolic one for ``d > 0``, where Cardano's sum cancels, Cardano's for ``d <= 0``)."""
+    q = math.pi / 8.0
+    positive = d > 0
+    dp = jnp.where(positive, d, 1.0)
+    m_pos = 2.0 * jnp.sqrt(dp / 3.0) * jnp.sinh(jnp.arcsinh(q * (3.0 / dp) ** 1.5) / 3.0)
+    dn = jnp.where(positive, 0.0, d)
+    big = jnp.cbrt(q + jnp.sqrt(jnp.maximum(q * q + (dn / 3.0) ** 3, 0.0)))
+    m_neg = big - dn / (3.0 * big)
+    return jnp.where(positive, m_pos, m_neg)
+
+
+def _jkr_branch(d):
+    """``(m, s)`` of the closed form at ``d`` (see above)."""
+    m = _jkr_cubic_root(d)
+    return m, 2.0 * jnp.sqrt(math.pi / m) - 2.0 * m
+
+
+def _jkr_floor_values(floor):
+    """``m, s`` and their slopes in ``d`` at ``d_c + floor`` (plain floats: Newton's method on
+    the cubic from its value at the snap-off, ``pi^(1/3)``)."""
+    d = JKR_SNAP_OFF + floor
+    m = math.pi ** (1.0 / 3.0)
+    for _ in range(60):
+        m -= (m**3 + d * m - math.pi / 4.0) / (3.0 * m * m + d)
+    dm = -m / (3.0 * m * m + d)  # implicit derivative of the cubic
+    s = 2.0 * math.sqrt(math.pi / m) - 2.0 * m
+    ds = (-math.sqrt(math.pi) * m**-1.5 - 2.0) * dm
+    return d, m, dm, s, ds
+
+
+def jkr_contact_radius(n, radius, E, w, floor=0.0):
+    """JKR contact radius on the stable branch at overlap ``n >= n_c`` (``n_c < 0``).
+
+    ``floor > 0`` (in units of ``mu``): below ``n = mu (d_c + floor)`` the closed form's two
+    parts ``m`` and ``s`` continue along their tangents (``s`` down to 0), so that the
+    Runge-Kutta stages that overshoot the separation event see a smooth, finite law instead
+    of the square root at the snap-off (compare :func:`contact_radius`).
+    """
+    lam, mu = jkr_scales(radius, E, w)
+    d = n / mu
+    if floor <= 0.0:
+        m, s = _jkr_branch(d)
+    else:
+        d_f, m_f, dm_f, s_f, ds_f = _jkr_floor_values(floor)
+        below = d < d_f
+        m, s = _jkr_branch(jnp.where(below, d_f, d))
+        m = jnp.where(below, m_f + dm_f * (d - d_f), m)
+        s = jnp.where(below, s_f + ds_f * (d - d_f), s)
+    u = 0.5 * (jnp.sqrt(2.0 * m) + safe_sqrt(jnp.maximum(s, 0.0)))
+    return lam * u * u
+
+
+def jkr_hertz_force(a, radius, K):
+    """The Hertzian part of the JKR force, ``-K a^3 / r`` (repulsive: negative)."""
+    return -K * a**3 / radius
+
+
+def jkr_adhesion_force(a, K, w):
+    """The adhesive part of the JKR force, ``sqrt(6 pi w K a^3)`` (attractive: positive)."""
+    return jnp.sqrt(6.0 * math.pi * w * K * a**3)
+
+
+def _jkr_energy(a, radius, K, w):
+    """An antiderivative in ``a`` of ``P(a) dn/da`` (see :func:`jkr_potential`)."""
+    return (
+        0.4 * K * a**5 / radius**2
+        - (8.0 / (3.0 * radius)) * jnp.sqrt(3.0 * math.pi * w * K / 8.0) * a**3.5
+        + math.pi * w * a * a
+    )
+
+
+def jkr_potential(a, radius, K, w):
+    """Potential energy of the JKR force at contact radius ``a``, zero at first touch:
+    ``V = G(a) - G(a0)`` with ``G' = P dn/da``, ``a0 = lam (2 pi)^(1/3)``. The elastic
+    impact's loss is ``V(a_c)``, the barrier a leaving sphere must climb."""
+    E = 0.75 * K
+    lam, _ = jkr_scales(radius, E, w)
+    return _jkr_energy(a, radius, K, w) - _jkr_energy(JKR_TOUCH * lam, radius, K, w)
+
+
+def jkr_rolling_moment(a, w_spin, radius, K, C_H):
+    """Hertzian rolling-resistance moment with the JKR contact radius, ``-(K/5) C_H a^5 w / r``
+    (eq. 18's ``a^4 sqrt(n/r)`` is ``a^5 / r`` for Hertz's ``a = sqrt(r n)``)."""
+    return -(K / 5.0) * C_H * a**5 / radius * w_spin

@@ -21,7 +21,7 @@ RollingMoments = Literal["none", "analytical", "lambda"]
 FrictionLoad = Literal["net", "hertz"]
 TANGENTIAL_MODELS = ("rigid", "mindlin")
 #: The normal contact laws of ``model.normal`` (docs/physics.md, "Normal laws").
-NORMAL_LAWS = ("brach_dunn", "dmt")
+NORMAL_LAWS = ("brach_dunn", "dmt", "jkr")
 SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
 
 
@@ -124,9 +124,10 @@ class Contact(eqx.Module):
     - `G_star`: effective shear modulus (Pa, > 0) of the tangential (Mindlin) stiffness
       ``k_t = 8 G* a``, ``1/G* = (2 - nu1)/G1 + (2 - nu2)/G2``; used only with
       ``model.tangential = "mindlin"`` (0, the default, means "not given").
-    - `w`: work of adhesion (J/m^2, >= 0) of the DMT normal law (``model.normal = "dmt"``):
-      the energy per unit area that separates the two surfaces, ``w = 2 gamma`` for one
-      material of surface energy ``gamma``; the DMT pull-off force is ``2 pi w r``.
+    - `w`: work of adhesion (J/m^2, >= 0) of the DMT and JKR normal laws (``model.normal =
+      "dmt"`` or ``"jkr"``): the energy per unit area that separates the two surfaces,
+      ``w = 2 gamma`` for one material of surface energy ``gamma``; the pull-off force is
+      ``2 pi w r`` (DMT) or ``1.5 pi w r`` (JKR).
     """
 
     K: jax.Array = eqx.field(converter=_numbers("contact.K"))
@@ -159,7 +160,9 @@ class Model(eqx.Module):
     - `normal`: the normal contact law: ``"brach_dunn"`` (default: Hertz, Hertzian damping,
       the adhesion ring ``2 pi a f0`` and its damping) or ``"dmt"`` (Hertz, Hertzian damping
       and the constant DMT adhesion ``2 pi w r`` while in contact, from ``contact.w``; no ring,
-      so no adhesion damping and no peeling moment; docs/physics.md, "Normal laws").
+      so no adhesion damping and no peeling moment) or ``"jkr"`` (the JKR force of the contact
+      radius, Hertzian damping of its Hertzian part ``K a^3 / r``, contact until the snap-off
+      overlap ``< 0``); docs/physics.md, "Normal laws".
     """
 
     rotation: bool = eqx.field(static=True, default=True)
@@ -174,7 +177,7 @@ class Model(eqx.Module):
         if self.normal not in NORMAL_LAWS:
             raise SceneError(
                 f"model.normal must be one of {', '.join(repr(n) for n in NORMAL_LAWS)}, got "
-                f"{self.normal!r} (JKR and Thornton-Ning are not in the engine yet: "
+                f"{self.normal!r} (Thornton-Ning is not in the engine yet: "
                 "docs/open_points.md)"
             )
         if self.tangential not in TANGENTIAL_MODELS:
@@ -364,12 +367,44 @@ class Scene(eqx.Module):
     priors: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
 
     def __check_init__(self):
+        if self.model.tangential == "mindlin" and self.model.normal == "jkr":
+            raise SceneError(
+                'model.tangential = "mindlin" is not available with model.normal = "jkr" yet '
+                "(docs/open_points.md)"
+            )
         if self.model.tangential == "mindlin":
             check_range(
                 "contact.G_star (needed by model.tangential = 'mindlin')",
                 self.contact.G_star,
                 positive=True,
             )
+
+    def with_normal_law(self, law: str) -> "Scene":
+        """This scene with another normal law (``model.normal``), its adhesion carried over:
+        ``f0`` and ``w`` are converted where the one needed is 0, by equal adhesion force at
+        the Brach-Dunn law's adhesive equilibrium overlap ``2 pi f0 / K`` (``2 pi a f0 = 2 pi
+        w r``: ``w = f0 sqrt(2 pi f0 / (K r))``); a starting point for a fit, not an
+        equivalence (the laws differ in shape)."""
+        if law not in NORMAL_LAWS:
+            raise SceneError(f"model.normal must be one of {NORMAL_LAWS}, got {law!r}")
+        if law == self.model.normal:
+            return self
+        c, r = self.contact, self.particle.radius
+        if self.model.normal == "brach_dunn":
+            w = (
+                c.w
+                if np.all(np.asarray(c.w) > 0)
+                else c.f0 * jnp.sqrt(2 * jnp.pi * c.f0 / (c.K * r))
+            )
+            f0 = 0.0
+        else:
+            w = c.w
+            f0 = (c.w**2 * c.K * r / (2 * jnp.pi)) ** (1 / 3) if law == "brach_dunn" else 0.0
+        tangential = "rigid" if law == "jkr" else self.model.tangential
+        return self.replace(
+            contact={"f0": f0, "w": w if law != "brach_dunn" else 0.0},
+            model={"normal": law, "tangential": tangential},
+        )
 
     def replace(self, **sections):
         """A copy with fields replaced: ``scene.replace(contact={"f0": 1.0}, solver={...})``."""

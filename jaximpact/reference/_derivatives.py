@@ -89,7 +89,7 @@ def output_derivatives(
     }  # fmt: skip
     if p.tangential == "mindlin":
         x0["G_star"] = p.G_star
-    if p.normal == "dmt":
+    if p.normal in ("dmt", "jkr"):
         x0["w"] = p.w
 
     def run(name, value):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from . import jkr
 from ._params import Params
 
 
@@ -36,6 +37,8 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
     Returns a dict with F_H, F_HD, F_A, F_AD, F_n, M_A, M_H, M and N.
     """
     out = dict(F_H=0.0, F_HD=0.0, F_A=0.0, F_AD=0.0, F_n=0.0, M_A=0.0, M_H=0.0, M=0.0, N=0.0)
+    if p.jkr:
+        return _jkr_forces(p, n, ndot, w, out)
     if not n > 0:
         return out
     r = p.radius
@@ -62,8 +65,45 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
     return out
 
 
+def _jkr_forces(p: Params, n: float, ndot: float, w: float, out: dict) -> dict:
+    """The JKR law (from the contact radius of the stable branch, found by root finding):
+    Hertzian part ``K a^3 / r`` damped by ``C_H``, adhesive part ``sqrt(6 pi w K a^3)``."""
+    if not n > p.separation_overlap:
+        return out
+    r, E = p.radius, 0.75 * p.K
+    a = jkr.contact_radius(n, r, E, p.w)
+    hertz = p.K * a**3 / r
+    out["F_H"] = -hertz
+    out["F_HD"] = -hertz * p.C_H * ndot
+    out["F_A"] = math.sqrt(6.0 * math.pi * p.w * p.K * a**3)
+    if p.rolling_moments == "analytical":
+        out["M_H"] = -(p.K / 5.0) * p.C_H * a**5 / r * w
+        out["M"] = out["M_H"]
+    elif p.rolling_moments == "lambda":
+        out["M"] = -p.lam * p.C_A * a * w
+    out["F_n"] = out["F_H"] + out["F_HD"] + out["F_A"]
+    out["N"] = abs(out["F_n"]) if p.friction_load == "net" else hertz
+    return out
+
+
+def _jkr_energy(p: Params, a: float) -> float:
+    """An antiderivative in ``a`` of ``P(a) dn/da`` (docs/physics.md, "Normal laws")."""
+    r, K, w = p.radius, p.K, p.w
+    return (
+        0.4 * K * a**5 / r**2
+        - 8.0 / (3.0 * r) * math.sqrt(3.0 * math.pi * w * K / 8.0) * a**3.5
+        + math.pi * w * a * a
+    )
+
+
 def normal_potential(p: Params, n: float) -> float:
-    """V(n), the potential of F_H + F_A (zero out of contact; continuous at 0 for DMT too)."""
+    """V(n), the potential of F_H + F_A (zero out of contact; continuous at 0 for DMT too; for
+    JKR zero at first touch, ``n = 0``)."""
+    if p.jkr:
+        r, E = p.radius, 0.75 * p.K
+        a = jkr.contact_radius(max(n, p.separation_overlap), r, E, p.w)
+        lam = (p.w * r * r / E) ** (1.0 / 3.0)
+        return _jkr_energy(p, a) - _jkr_energy(p, (2.0 * math.pi) ** (1.0 / 3.0) * lam)
     if not n > 0:
         return 0.0
     v = 0.4 * p.K * math.sqrt(p.radius) * n**2.5

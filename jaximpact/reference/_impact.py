@@ -59,19 +59,30 @@ def simulate_impact(
         t_max = 1000.0 * T
 
     n_eps = _N_EPS * L
-    t = n_eps / v_n
-    y = np.array([n_eps, v_n, v_t - r * w0 if p.rotation else v_t, w0, 0, 0, 0, 0], dtype=float)
+    # JKR: the force is finite at first touch (the solve starts there) and the contact ends
+    # at the snap-off overlap n_c < 0 (the run stops n_eps above it)
+    n_c = p.separation_overlap
+    n0 = 0.0 if p.jkr else n_eps
+    t = n0 / v_n
+    y = np.array([n0, v_n, v_t - r * w0 if p.rotation else v_t, w0, 0, 0, 0, 0], dtype=float)
     energy_in = 0.5 * m * speed**2 + 0.5 * m * model.k2 * w0**2
     mode, roll_time = _initial_mode(model, y)
 
-    run = _RigidRun(model, S, L, T, rtol, atol_vec, method, history, detect_capture, n_eps)
-    y, t = run.integrate(y, t, t_max, mode, roll_time, max_segments)
+    run = _RigidRun(model, S, L, T, rtol, atol_vec, method, history, detect_capture, n_eps, n_c)
+    if detect_capture and model.capture_energy(y) < 0:
+        run.status, run.roll_time = "captured", roll_time  # below JKR's sticking speed
+    else:
+        y, t = run.integrate(y, t, t_max, mode, roll_time, max_segments)
 
     contact_time = t
     if run.status == "rebound" and y[1] < 0:
-        contact_time += y[0] / -y[1]  # the last n_eps, crossed at constant speed
+        contact_time += (y[0] - n_c) / -y[1]  # the last n_eps, crossed at constant speed
+    energy_out = model.mechanical_energy(y)
+    if run.status == "rebound" and p.jkr:  # the snap-off: the barrier's energy is lost
+        energy_out -= p.jkr_barrier
+        y[5] += p.jkr_barrier
     hist = None
-    if history:
+    if history and run.segments:  # (none for a JKR sphere stuck at first touch)
         hist = _build_history(model, run.segments, S, T, v_n, y, t, contact_time, n_samples)
     return ImpactResult(
         status=run.status,
@@ -82,7 +93,7 @@ def simulate_impact(
         roll_time=float(run.roll_time),
         max_overlap=float(run.max_overlap),
         energy_in=float(energy_in),
-        energy_out=float(model.mechanical_energy(y)),
+        energy_out=float(energy_out),
         loss_hertz_damping=float(y[4]),
         loss_adhesion_damping=float(y[5]),
         loss_friction=float(y[6]),
@@ -130,12 +141,14 @@ class _RigidRun:
     """The segment loop of the rigid-friction model: integrate until an event, switch the
     tangential mode, restart; ends in a rebound, a capture or a failure."""
 
-    def __init__(self, model, S, L, T, rtol, atol_vec, method, history, detect_capture, n_eps):
+    def __init__(
+        self, model, S, L, T, rtol, atol_vec, method, history, detect_capture, n_eps, n_c=0.0
+    ):
         self.model, self.S, self.L, self.T = model, S, L, T
         self.rtol, self.atol_vec, self.method, self.history = rtol, atol_vec, method, history
-        self.base_events = [(lambda y: y[0] - n_eps, True, -1, "rebound")]
+        self.base_events = [(lambda y: y[0] - n_c - n_eps, True, -1, "rebound")]
         if detect_capture:
-            self.base_events.append((model.normal_energy, True, -1, "captured"))
+            self.base_events.append((model.capture_energy, True, -1, "captured"))
         self.base_events.append((lambda y: y[1], False, -1, "turn"))  # max overlap at ndot = 0
         self.kinks = model.kink_functions()
         self.h_look = _LOOKAHEAD * T

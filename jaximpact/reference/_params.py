@@ -12,7 +12,7 @@ ROLLING_MOMENTS = ("none", "analytical", "lambda")
 FRICTION_LOADS = ("net", "hertz")
 
 
-NORMAL_LAWS = ("brach_dunn", "dmt")
+NORMAL_LAWS = ("brach_dunn", "dmt", "jkr")
 
 
 TABLE1_SPEED = 1.66  # m/s, the paper's reference impact speed
@@ -40,12 +40,16 @@ class Params:
     friction_load: str = "net"
     tangential: str = "rigid"  # or "mindlin": the elastic spring 8 G* a (see _MindlinModel)
     G_star: float = 0.0  # Pa, effective shear modulus (mindlin only)
-    normal: str = "brach_dunn"  # or "dmt": constant adhesion 2 pi w r in contact, no ring
-    w: float = 0.0  # J/m^2, work of adhesion (dmt only)
+    # "dmt": constant adhesion 2 pi w r in contact, no ring; "jkr": the JKR force, contact
+    # down to the snap-off overlap (< 0)
+    normal: str = "brach_dunn"
+    w: float = 0.0  # J/m^2, work of adhesion (dmt and jkr)
 
     def __post_init__(self):
         if self.normal not in NORMAL_LAWS:
             raise ValueError(f"normal must be one of {NORMAL_LAWS}")
+        if self.normal == "jkr" and self.tangential == "mindlin":
+            raise ValueError("tangential = 'mindlin' is not available with normal = 'jkr'")
         if self.tangential not in ("rigid", "mindlin"):
             raise ValueError("tangential must be 'rigid' or 'mindlin'")
         if self.tangential == "mindlin" and not self.G_star > 0:
@@ -73,7 +77,33 @@ class Params:
             return 0.0
         if self.normal == "dmt":
             return (2.0 * math.pi * self.w * math.sqrt(self.radius) / self.K) ** (2.0 / 3.0)
+        if self.normal == "jkr":  # the overlap scale mu = (w^2 R / E^2)^(1/3)
+            return (self.w**2 * self.radius / (0.75 * self.K) ** 2) ** (1.0 / 3.0)
         return 2.0 * math.pi * self.f0 / self.K
+
+    @property
+    def jkr(self) -> bool:
+        """The JKR law acts (with ``w = 0`` or without adhesion it is Hertz's)."""
+        return self.adhesion and self.normal == "jkr" and self.w > 0
+
+    @property
+    def separation_overlap(self) -> float:
+        """Where the contact ends: 0, or the JKR snap-off overlap (< 0)."""
+        if not self.jkr:
+            return 0.0
+        from .jkr import snap_off
+
+        return snap_off(self.radius, 0.75 * self.K, self.w)[1]
+
+    @property
+    def jkr_barrier(self) -> float:
+        """The JKR potential at the snap-off (0 without JKR): the energy an elastic JKR
+        impact loses, which a sphere in contact must have to leave."""
+        if not self.jkr:
+            return 0.0
+        from .jkr import energy_loss
+
+        return energy_loss(self.radius, 0.75 * self.K, self.w)
 
     @property
     def mass(self) -> float:

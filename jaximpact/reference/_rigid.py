@@ -79,6 +79,11 @@ class _Model:
     def normal_energy(self, y) -> float:
         return 0.5 * self.m * y[1] ** 2 + normal_potential(self.p, y[0])
 
+    def capture_energy(self, y) -> float:
+        """Negative once the sphere can no longer leave: the normal energy below the barrier
+        at the separation (0, or JKR's snap-off potential)."""
+        return self.normal_energy(y) - self.p.jkr_barrier
+
     def mechanical_energy(self, y) -> float:
         ke_t = 0.5 * self.m * self.tdot(y) ** 2
         return self.normal_energy(y) + ke_t + 0.5 * self.m * self.k2 * y[3] ** 2

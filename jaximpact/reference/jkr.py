@@ -1,6 +1,6 @@
 """The JKR adhesive normal contact (Johnson, Kendall & Roberts 1971) in closed form, and an exact
-elastic JKR normal impact: the oracles for a JKR normal law (not yet a scene option of the
-engine: docs/open_points.md).
+elastic JKR normal impact: the oracles of the engine's JKR normal law (``[model] normal =
+"jkr"``, docs/physics.md "Normal laws").
 
 Convention: ``w`` is the **work of adhesion** (Dupre, J/m^2), the energy per unit area needed
 to separate the two surfaces; for two surfaces of one material ``w = 2 gamma`` with ``gamma``
@@ -16,7 +16,7 @@ The contact in terms of the contact radius ``a`` (force ``P`` repulsive positive
 
 In the scales ``a = x lam``, ``lam = (w R^2 / E)^(1/3)``: ``P = w R (4/3 x^3 - sqrt(8 pi)
 x^(3/2))`` and ``delta = mu (x^2 - sqrt(2 pi) x^(1/2))``, ``mu = (w^2 R / E^2)^(1/3)``. Hence
-(derivations in docs/physics.md, "JKR"):
+(derivations in docs/physics.md, "JKR closed forms"):
 
 - pull-off force under load control ``F_c = 1.5 pi w R``: ``-P`` at its largest, where
   ``dP / da = 0`` (``x^(3/2) = 3 sqrt(2 pi) / 4``);

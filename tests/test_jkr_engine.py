@@ -1,0 +1,213 @@
+"""The JKR normal law in the engine (``model.normal = "jkr"``): its closed-form contact radius,
+force and potential against ``jaximpact.reference.jkr``; elastic impacts against the
+restitution ``e = sqrt(1 - (V_s/V)^2)``; damped, oblique, spinning impacts against the exact
+switched reference (which finds the contact radius by root finding); derivatives against the
+reference's central differences; batches, float32 and the Hertz limit."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaximpact as ji
+from jaximpact import reference as ref
+from jaximpact._model import laws
+from jaximpact.reference import jkr
+
+R, RHO, K = 20e-6, 2500.0, 6.6e10  # a 20 um glass-like sphere on a stiff wall
+E = 0.75 * K  # K = 4 E*/3
+MASS = RHO * 4 / 3 * math.pi * R**3
+
+
+def jkr_scene(w=0.1, C_H=0.2, friction=0.3, moments="analytical", lam=0.0, C_A=0.5):
+    return ji.Scene(
+        particle=ji.Particle(radius=R, density=RHO),
+        contact=ji.Contact(K=K, f0=0.0, C_A=C_A, C_H=C_H, friction=friction, w=w),
+        model=ji.Model(normal="jkr", rolling_moments=moments, lambda_=lam),
+    )
+
+
+def jkr_params(w=0.1, C_H=0.2, friction=0.3, moments="analytical", lam=0.0, C_A=0.5):
+    return ref.Params(
+        radius=R, density=RHO, K=K, C_A=C_A, C_H=C_H, friction=friction, w=w, lam=lam,
+        normal="jkr", rolling_moments=moments,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("w", [0.01, 0.1, 2.0])
+def test_contact_radius_force_and_potential_closed_forms(w):
+    """The closed-form contact radius equals the reference's root (1e-13) from the snap-off to
+    1e7 overlap scales; the force is ``-8/9 F_c`` at zero overlap and ``-5/9 F_c`` at the
+    snap-off (repulsive positive); the potential's barrier is the elastic JKR loss
+    ``c_W (w^5 R^4 / E^2)^(1/3)`` and its derivative is the force."""
+    lam, mu = laws.jkr_scales(R, E, w)
+    _, n_c, _ = jkr.snap_off(R, E, w)
+    assert laws.JKR_SNAP_OFF * mu == pytest.approx(n_c, rel=1e-14)
+    for d in (-1.6, -1.0, -0.3, 0.0, 1e-3, 1.0, 50.0, 1e4, 1e7):
+        n = max(d * mu, n_c)
+        got = float(laws.jkr_contact_radius(jnp.float64(n), R, E, w))
+        assert got == pytest.approx(jkr.contact_radius(n, R, E, w), rel=1e-13), d
+    F_c = jkr.pull_off_force(R, w)
+
+    def force(n):  # toward the surface positive (attractive), as in the engine
+        a = laws.jkr_contact_radius(n, R, E, w)
+        return laws.jkr_hertz_force(a, R, K) + laws.jkr_adhesion_force(a, K, w)
+
+    assert float(force(jnp.float64(0.0))) == pytest.approx(8 / 9 * F_c, rel=1e-13)
+    a_c = laws.jkr_contact_radius(jnp.float64(n_c), R, E, w)
+    assert float(a_c) == pytest.approx(lam * (math.pi / 8) ** (1 / 3), rel=1e-7)
+    assert float(force(jnp.float64(n_c))) == pytest.approx(5 / 9 * F_c, rel=1e-7)
+    barrier = laws.jkr_potential(lam * (math.pi / 8) ** (1 / 3), R, K, w)
+    assert float(barrier) == pytest.approx(jkr.energy_loss(R, E, w), rel=1e-13)
+    slope = jax.grad(lambda n: laws.jkr_potential(laws.jkr_contact_radius(n, R, E, w), R, K, w))
+    for d in (-1.2, 0.5, 30.0):
+        assert float(slope(jnp.float64(d * mu))) == pytest.approx(
+            -float(force(jnp.float64(d * mu))), rel=1e-12
+        )
+
+
+def test_floor_continuation_is_smooth_and_exact_above_it():
+    """Above ``d_c + floor`` the continued radius is the closed form; below it, continuous and
+    finite past the snap-off (where the closed form is a square root's NaN)."""
+    w = 0.1
+    lam, mu = laws.jkr_scales(R, E, w)
+    floor = 1e-4
+    d = jnp.array([laws.JKR_SNAP_OFF + 2 * floor, laws.JKR_SNAP_OFF + floor])
+    np.testing.assert_allclose(
+        np.asarray(laws.jkr_contact_radius(d * mu, R, E, w, floor)),
+        np.asarray(laws.jkr_contact_radius(d * mu, R, E, w)),
+        rtol=1e-14,
+    )
+    below = laws.jkr_contact_radius((laws.JKR_SNAP_OFF - 1e-2) * mu, R, E, w, floor)
+    assert np.isfinite(float(below)) and 0 < float(below) / lam < 1.0
+
+
+def test_elastic_impacts_follow_the_closed_form_restitution():
+    """No damping, no friction: captured below the sticking speed ``V_s``, rebound above it
+    with ``e = sqrt(1 - (V_s/V)^2)`` (Thornton & Ning's elastic-adhesive restitution with
+    this project's constant ``c_s = 1.0348``) to 1e-8; the ledger's adhesion loss is ``W``."""
+    w = 0.1
+    scene = jkr_scene(w=w, C_H=0.0, friction=0.0, moments="none")
+    V_s = jkr.sticking_velocity(R, E, w, MASS)
+    ratios = np.array([0.5, 0.99, 1.001, 1.01, 1.1, 2.0, 10.0, 1000.0])
+    res = ji.simulate(scene, ratios * V_s, 0.0, 0.0)
+    for i, ratio in enumerate(ratios):
+        want = jkr.restitution(ratio * V_s, R, E, w, MASS)
+        if ratio < 1:
+            assert int(res.status[i]) == ji.Status.CAPTURED
+            continue
+        assert int(res.status[i]) == ji.Status.REBOUND
+        assert float(res.cor_n[i]) == pytest.approx(want, abs=1e-8), ratio
+        W = float(res.loss_adhesion_damping[i])
+        assert W == pytest.approx(jkr.energy_loss(R, E, w), rel=1e-10)
+        assert abs(float(res.energy_in[i] - res.energy_out[i]) - W) < 1e-8 * float(res.energy_in[i])
+
+
+# Damped, oblique, spinning impacts: analytical (Hertzian) and lambda rolling moments.
+CASES = [
+    dict(w=0.1, C_H=0.2, moments="analytical"),
+    dict(w=1.0, C_H=0.5, moments="none"),
+    dict(w=0.3, C_H=1.0, moments="lambda", lam=1e-10),
+]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_impacts_match_the_exact_reference(case):
+    """Statuses equal and velocities and spin within 1e-7 of the speed (measured 5e-9) across
+    captures at first touch, captures during the contact and rebounds; the ledger closed."""
+    scene, p = jkr_scene(**case), jkr_params(**case)
+    rng = np.random.default_rng(3)
+    speeds = np.geomspace(3e-3, 5.0, 10)
+    angles = rng.uniform(-70, 70, speeds.size)
+    angles[0] = 0.0
+    omega0 = rng.uniform(-0.3, 0.3, speeds.size) * speeds / R
+    res = ji.simulate(scene, speeds, angles, omega0)
+    statuses = {"rebound": ji.Status.REBOUND, "captured": ji.Status.CAPTURED}
+    seen = set()
+    for i, v in enumerate(speeds):
+        q = ref.simulate_impact(p, v, angles[i], omega0[i])
+        assert int(res.status[i]) == statuses[q.status], (v, angles[i])
+        seen.add(q.status)
+        if q.status == "rebound":
+            assert float(res.vn_out[i]) == pytest.approx(q.vn_out, abs=1e-7 * v)
+        assert float(res.vt_out[i]) == pytest.approx(q.vt_out, abs=1e-7 * v)
+        assert float(res.omega_out[i]) * R == pytest.approx(q.omega_out * R, abs=1e-7 * v)
+        ledger = float(res.energy_in[i] - res.energy_out[i]) - sum(
+            float(getattr(res, k)[i])
+            for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction")
+        ) - float(res.loss_rolling[i])  # fmt: skip
+        assert abs(ledger) < 1e-7 * float(res.energy_in[i])
+    assert seen == {"rebound", "captured"}
+
+
+def test_capture_speed_agrees_with_the_reference():
+    """Around the reference's capture speed (bisection to 1e-6, a damped oblique spinning
+    impact): captured 0.1 % below it and rebounding 0.1 % above it, as the reference."""
+    case = dict(w=0.3, C_H=1.0, moments="analytical")
+    scene, p = jkr_scene(**case), jkr_params(**case)
+    angle, omega0 = 30.0, 2e3
+    v_c = ref.capture_speed(p, angle, omega0, lo=1e-3, hi=1.0)
+    res = ji.simulate(scene, np.array([0.999, 1.001]) * v_c, angle, omega0)
+    assert list(np.asarray(res.status)) == [ji.Status.CAPTURED, ji.Status.REBOUND]
+    q = ref.simulate_impact(p, 1.001 * v_c, angle, omega0)
+    assert float(res.vn_out[1]) == pytest.approx(q.vn_out, abs=1e-6 * v_c)
+
+
+def test_derivatives_match_central_differences_of_the_reference():
+    """``d/dw``, ``d/dC_H`` and the impact's inputs of an oblique spinning rebound, from
+    ``output_jacobian``, against the reference's Richardson-checked central differences."""
+    scene, p = jkr_scene(w=0.3), jkr_params(w=0.3)
+    speed, angle, omega0 = 0.2, 35.0, 0.1 * 0.2 / R
+    inputs = ("w", "C_H", "friction", "speed", "angle_deg")
+    jac = ji.output_jacobian(scene, speed, angle, omega0, inputs=inputs)
+    exact, err = ref.output_derivatives(p, speed, angle, omega0, inputs=inputs)
+    x = {"w": 0.3, "C_H": 0.2, "friction": 0.3, "speed": speed, "angle_deg": 180 / math.pi}
+    for out, s_out in {"cor_n": 1.0, "vt_out": speed, "omega_out": speed / R}.items():
+        for j, name in enumerate(inputs):
+            want = exact[out][name] * x[name] / s_out
+            assert err[out][name] * x[name] / s_out < 1e-5, (out, name)
+            got = float(jac[out][0, j]) * x[name] / s_out
+            assert got == pytest.approx(want, abs=1e-4), (out, name)
+
+
+def test_batch_does_not_change_a_lane_and_zero_w_is_hertz():
+    """An impact is bitwise the same alone and in a batch (including one stuck at first
+    touch); ``w = 0`` is the Hertz law of the Brach-Dunn scene without adhesion, bitwise."""
+    scene = jkr_scene(w=0.3)
+    speeds = np.array([0.004, 0.05, 0.3, 2.0])
+    angles = np.array([0.0, 40.0, -20.0, 60.0])
+    omega0 = np.array([0.0, 2e4, -1e4, 0.0])
+    batch = ji.simulate(scene, speeds, angles, omega0)
+    for i in (0, 2):
+        alone = ji.simulate(scene, speeds[i : i + 1], angles[i : i + 1], omega0[i : i + 1])
+        for k in ("status", "cor_n", "vt_out", "omega_out", "contact_time"):
+            a, b = np.asarray(getattr(alone, k))[0], np.asarray(getattr(batch, k))[i]
+            assert a == b or (np.isnan(a) and np.isnan(b)), (k, i)
+    hertz = ji.Scene(
+        particle=ji.Particle(radius=R, density=RHO),
+        contact=ji.Contact(K=K, f0=0.0, C_A=0.5, C_H=0.2, friction=0.3),
+        model=ji.Model(adhesion=False),
+    )
+    a, b = (
+        ji.simulate(jkr_scene(w=0.0), speeds, angles, omega0),
+        ji.simulate(hertz, speeds, angles, omega0),
+    )
+    for k in ("cor_n", "vt_out", "omega_out", "contact_time"):
+        np.testing.assert_array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k)), k)
+
+
+def test_float32_runs_and_agrees_to_its_precision():
+    """In float32 no impact fails and rebounds agree with float64 to 1e-3 of the speed."""
+    scene = jkr_scene(w=0.3)
+    speeds = np.geomspace(3e-3, 5.0, 12)
+    angles = np.linspace(-70, 70, speeds.size)
+    r64 = ji.simulate(scene, speeds, angles, 0.0)
+    r32 = ji.simulate(scene, speeds.astype(np.float32), angles.astype(np.float32), 0.0)
+    assert np.all(np.asarray(r32.status) <= ji.Status.CAPTURED)
+    same = np.asarray(r32.status) == np.asarray(r64.status)
+    assert same.sum() >= speeds.size - 1  # one may flip right at the capture speed
+    rebound = same & (np.asarray(r64.status) == ji.Status.REBOUND)
+    err = np.abs(np.asarray(r32.vn_out, float) - np.asarray(r64.vn_out)) / speeds
+    assert np.max(err[rebound]) < 1e-3
