@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -489,7 +490,7 @@ def _compared_models(args, names, scene_path) -> dict:
     import jaximpact
     from jaximpact._model.scene import NORMAL_LAWS
 
-    from ._bayesian.priors import priors_for
+    from ._bayesian.priors import PRIOR_RANGES, priors_for
     from ._least_squares.objective import FITTABLE, FitError, check_names
 
     items = []
@@ -520,6 +521,10 @@ def _compared_models(args, names, scene_path) -> dict:
         except FitError as err:
             raise FitError(f"--compare {item}: {err}") from None
         scene = base.with_normal_law(label) if law else jaximpact.load_scene(label)
+        if law and "w" in model_names and not float(scene.contact.w) > 0:
+            # a scene without adhesion: w starts at its default prior's centre (0.1 J/m^2)
+            lo, hi = PRIOR_RANGES["w"]
+            scene = scene.replace(contact={"w": math.sqrt(lo * hi)}, model={"adhesion": True})
         check_names(model_names, scene)
         # --prior applies to each model that fits that parameter
         priors = _parse_priors(

@@ -24,6 +24,7 @@ from ._model.scene import Particle as Particle
 from ._model.scene import Scene as Scene
 from ._model.scene import SceneError as SceneError
 from ._model.scene import Solver as Solver
+from ._model.scene import Target as Target
 from ._model.scene import damping_from_zeta as damping_from_zeta
 from ._model.scene import hertz_stiffness as hertz_stiffness
 from ._model.scene import table1_scene as table1_scene

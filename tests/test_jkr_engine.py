@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference_checks import check_derivatives, check_impacts, random_impacts
 
 import jaximpact as ji
 from jaximpact import reference as ref
@@ -117,28 +118,9 @@ CASES = [
 def test_impacts_match_the_exact_reference(case):
     """Statuses equal and velocities and spin within 1e-7 of the speed (measured 5e-9) across
     captures at first touch, captures during the contact and rebounds; the ledger closed."""
-    scene, p = jkr_scene(**case), jkr_params(**case)
-    rng = np.random.default_rng(3)
     speeds = np.geomspace(3e-3, 5.0, 10)
-    angles = rng.uniform(-70, 70, speeds.size)
-    angles[0] = 0.0
-    omega0 = rng.uniform(-0.3, 0.3, speeds.size) * speeds / R
-    res = ji.simulate(scene, speeds, angles, omega0)
-    statuses = {"rebound": ji.Status.REBOUND, "captured": ji.Status.CAPTURED}
-    seen = set()
-    for i, v in enumerate(speeds):
-        q = ref.simulate_impact(p, v, angles[i], omega0[i])
-        assert int(res.status[i]) == statuses[q.status], (v, angles[i])
-        seen.add(q.status)
-        if q.status == "rebound":
-            assert float(res.vn_out[i]) == pytest.approx(q.vn_out, abs=1e-7 * v)
-        assert float(res.vt_out[i]) == pytest.approx(q.vt_out, abs=1e-7 * v)
-        assert float(res.omega_out[i]) * R == pytest.approx(q.omega_out * R, abs=1e-7 * v)
-        ledger = float(res.energy_in[i] - res.energy_out[i]) - sum(
-            float(getattr(res, k)[i])
-            for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction")
-        ) - float(res.loss_rolling[i])  # fmt: skip
-        assert abs(ledger) < 1e-7 * float(res.energy_in[i])
+    angles, omega0 = random_impacts(3, speeds, R)
+    seen = check_impacts(jkr_scene(**case), jkr_params(**case), speeds, angles, omega0)
     assert seen == {"rebound", "captured"}
 
 
@@ -158,18 +140,8 @@ def test_capture_speed_agrees_with_the_reference():
 def test_derivatives_match_central_differences_of_the_reference():
     """``d/dw``, ``d/dC_H`` and the impact's inputs of an oblique spinning rebound, from
     ``output_jacobian``, against the reference's Richardson-checked central differences."""
-    scene, p = jkr_scene(w=0.3), jkr_params(w=0.3)
-    speed, angle, omega0 = 0.2, 35.0, 0.1 * 0.2 / R
     inputs = ("w", "C_H", "friction", "speed", "angle_deg")
-    jac = ji.output_jacobian(scene, speed, angle, omega0, inputs=inputs)
-    exact, err = ref.output_derivatives(p, speed, angle, omega0, inputs=inputs)
-    x = {"w": 0.3, "C_H": 0.2, "friction": 0.3, "speed": speed, "angle_deg": 180 / math.pi}
-    for out, s_out in {"cor_n": 1.0, "vt_out": speed, "omega_out": speed / R}.items():
-        for j, name in enumerate(inputs):
-            want = exact[out][name] * x[name] / s_out
-            assert err[out][name] * x[name] / s_out < 1e-5, (out, name)
-            got = float(jac[out][0, j]) * x[name] / s_out
-            assert got == pytest.approx(want, abs=1e-4), (out, name)
+    check_derivatives(jkr_scene(w=0.3), jkr_params(w=0.3), 0.2, 35.0, 0.1 * 0.2 / R, inputs)
 
 
 def test_batch_does_not_change_a_lane_and_zero_w_is_hertz():
@@ -211,3 +183,16 @@ def test_float32_runs_and_agrees_to_its_precision():
     rebound = same & (np.asarray(r64.status) == ji.Status.REBOUND)
     err = np.abs(np.asarray(r32.vn_out, float) - np.asarray(r64.vn_out)) / speeds
     assert np.max(err[rebound]) < 1e-3
+
+
+def test_derivatives_are_batch_exact():
+    """A lane's derivatives in ``w`` and ``C_H`` are bitwise the same alone and in a batch."""
+    scene = jkr_scene(w=0.3)
+    speeds = np.array([0.05, 0.3, 2.0])
+    angles = np.array([40.0, -20.0, 60.0])
+    omega0 = np.array([2e4, -1e4, 0.0])
+    inputs = ("w", "C_H")
+    batch = ji.output_jacobian(scene, speeds, angles, omega0, inputs=inputs)
+    alone = ji.output_jacobian(scene, speeds[1:2], angles[1:2], omega0[1:2], inputs=inputs)
+    for k in ("cor_n", "vt_out", "omega_out"):
+        np.testing.assert_array_equal(np.asarray(alone[k])[0], np.asarray(batch[k])[1], k)

@@ -58,6 +58,10 @@ def scene_parameters(scene: Scene) -> dict:
         params["G_star"] = scene.contact.G_star
     if scene.model.normal in ("dmt", "jkr"):
         params["w"] = scene.contact.w
+    if scene.target is not None:
+        params.update(
+            radius2=scene.target.radius, density2=scene.target.density, omega2=scene.target.omega0
+        )
     return params
 
 
@@ -90,7 +94,8 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         check_range(
             "contact.G_star (model.tangential = 'mindlin')", params["G_star"], positive=True
         )
-    tangential = not _all([angle_deg, omega0], lambda v: v == 0)
+    spins = [omega0] + ([params["omega2"]] if "omega2" in params else [])
+    tangential = not _all([angle_deg, *spins], lambda v: v == 0)
     strength = params["f0"] if m.normal == "brach_dunn" else params["w"]
     adhesion = m.adhesion and not _all([strength], lambda v: v == 0)
     moments = m.rolling_moments
@@ -113,6 +118,7 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         mindlin=tangential and m.tangential == "mindlin",
         cap_width=CAP_WIDTH if m.tangential == "mindlin" else 0.0,
         normal=m.normal,
+        target=scene.target is not None,
     )
 
 
@@ -131,6 +137,8 @@ def stiffness_estimate(params: dict, speed, angle_deg):
         jnp.pi * p.f0 * p.C_A * a**3 / p.inertia,  # peeling moment M_A
         p.K / 5 * p.C_H * p.radius**1.5 / p.inertia,  # Hertzian rolling moment M_H
     ]
+    if p.inertia2 is not None:  # the moments turn a second sphere too
+        rates += [r * p.inertia / p.inertia2 for r in rates[2:]]
     return jnp.max(jnp.stack([jnp.max(r) for r in rates]))
 
 
@@ -143,10 +151,16 @@ def _scaled(params, speed, angle_deg, omega0):
     theta = jnp.deg2rad(angle_deg)
     v_n = speed * jnp.cos(theta)
     mass = params["density"] * (4.0 / 3.0) * jnp.pi * params["radius"] ** 3
-    units = hertz_units(mass, params["radius"], params["K"], v_n)
+    radius, target = params["radius"], None
+    if "radius2" in params:  # a sphere-sphere impact: reduced radius and mass
+        mass2 = params["density2"] * (4.0 / 3.0) * jnp.pi * params["radius2"] ** 3
+        target = (radius, mass, params["radius2"], mass2)
+        radius = radius * params["radius2"] / (radius + params["radius2"])
+        mass = mass * mass2 / (mass + mass2)
+    units = hertz_units(mass, radius, params["K"], v_n)
     p = ScaledParameters.from_si(
         units,
-        radius=params["radius"],
+        radius=radius,
         K=params["K"],
         f0=params["f0"],
         C_A=params["C_A"],
@@ -156,6 +170,7 @@ def _scaled(params, speed, angle_deg, omega0):
         inertia_factor=INERTIA_FACTOR,
         G_star=params.get("G_star"),
         w_adhesion=params.get("w"),
+        target=target,
     )
     return p, units
 
@@ -163,7 +178,7 @@ def _scaled(params, speed, angle_deg, omega0):
 # Only the motion and the peak overlap drive the step size: the ledger integrals follow it
 # (their kinks, e.g. max(ndot, 0) at the turning point, would only cost rejected steps), and
 # slide_time (a latch that jumps once, when rolling starts) must not drive it at all.
-CONTROLLED_STATES = ("n", "ndot", "vt", "w", "xi", "peak")
+CONTROLLED_STATES = ("n", "ndot", "vt", "w", "w2", "xi", "peak")
 
 
 def _error_norm(error):
@@ -321,12 +336,14 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
     impulse = p.friction * load * shell["time"] / eps
     vt = y["vt"]
     w = y["w"] if terms.rotation else jnp.zeros_like(vt)
-    m_eff = p.inertia / (p.inertia + p.radius**2) if terms.rotation else 1.0
-    slip = vt - p.radius * w
+    m_eff = dyn.slip_mass(terms, p)
+    slip = dyn.slip(terms, p, y, w)
     dv = jnp.clip(-m_eff * slip, -impulse, impulse)  # -m_eff slip brings the slip to zero
     out = {"vt": vt + dv, "loss_friction": -dv * slip - 0.5 * dv * dv / m_eff}
     if terms.rotation:
-        out["w"] = w - p.radius * dv / p.inertia
+        out["w"] = w - p.arm * dv / p.inertia
+        if terms.target:  # the second sphere takes the opposite impulse at its own arm
+            out["w2"] = y["w2"] - p.arm2 * dv / p.inertia2
     return out
 
 
@@ -345,9 +362,9 @@ def _shell_spring(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict):
     eps = terms.contact_floor
     n = jnp.full_like(y["ndot"], eps)
     w = y["w"] if terms.rotation else jnp.zeros_like(n)
-    slip = y["vt"] - p.radius * w
+    slip = dyn.slip(terms, p, y, w)
     k_t = laws.mindlin_stiffness(n, p.radius, p.G_star, eps)
-    cap = dyn.friction_limit(terms, p, n, y["ndot"], w) / k_t
+    cap = dyn.friction_limit(terms, p, n, y["ndot"], dyn.spins(terms, y)[1]) / k_t
     return jnp.clip(slip * shell["time"], -cap, cap)
 
 
@@ -366,6 +383,7 @@ class _Problem(eqx.Module):
     v_t: jax.Array
     entry: dict
     entry_friction: dict | None
+    w2_0: object = None  # the second sphere's initial spin (Hertz units)
 
 
 def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0):
@@ -374,7 +392,8 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
     p, u = _scaled(params, speed, angle_deg, omega0)
     theta = jnp.deg2rad(angle_deg)
     v_n, v_t = speed * jnp.cos(theta), speed * jnp.sin(theta)
-    y0 = dyn.initial_state(terms, v_t / v_n, omega0 * u.time, dtype)
+    w2 = params["omega2"] * u.time if "omega2" in params else 0.0
+    y0 = dyn.initial_state(terms, v_t / v_n, omega0 * u.time, dtype, w2)
     floor = terms.contact_floor
     if terms.jkr:  # smooth at first touch: the solve starts there
         entry = {"ndot": y0["ndot"], "time": jnp.zeros((), dtype), "peak": jnp.zeros((), dtype)}
@@ -391,7 +410,7 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
         entry_friction = {"loss_friction": jnp.zeros((), dtype)}
     elif terms.tangential and not terms.mindlin:
         entry_friction = _shell_friction(terms, p, y0, entry, entry["ndot"])
-        for k in ("vt", "w"):
+        for k in ("vt", "w", "w2"):
             if k in y0:
                 y0[k] = entry_friction[k]
     # One scalar event (diffrax's root find over several events solves a least-squares problem
@@ -443,6 +462,7 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
         v_t,
         entry,
         entry_friction,
+        w2 if terms.target else None,
     )
 
 
@@ -541,7 +561,7 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
         y["xi"] = jnp.where(separated, 0.0, y["xi"])
     if terms.tangential and not terms.mindlin:
         exit_.update(_shell_friction(terms, p, y, exit_, y["ndot"]))
-        for k in ("vt", "w"):
+        for k in ("vt", "w", "w2"):
             if k in y:
                 y[k] = jnp.where(separated, exit_[k], y[k])
         if "loss_friction" in y:
@@ -596,6 +616,8 @@ def _output_fields(terms: dyn.Terms, prob: _Problem, omega0, y, t_end, rebound, 
     energy_in = 0.5 * (1.0 + (v_t / v_n) ** 2)
     if terms.rotation:  # a scene without rotation ignores the initial spin, and its energy
         energy_in = energy_in + 0.5 * p.inertia * (omega0 * u.time) ** 2
+        if terms.target:
+            energy_in = energy_in + 0.5 * p.inertia2 * prob.w2_0**2
     losses = {
         k: (y[k] * e_unit if k in y else jnp.zeros((), dtype))
         for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
@@ -1046,6 +1068,9 @@ _NOMINAL = {
     "lambda": 0.0,
     "G_star": 2e10,
     "w": 0.1,
+    "radius2": 21.7e-6,
+    "density2": 2500.0,
+    "omega2": 0.0,
 }
 
 

@@ -13,6 +13,7 @@ from .._model.scene import (
     Scene,
     SceneError,
     Solver,
+    Target,
     check_input,
     damping_from_zeta,
     hertz_stiffness,
@@ -47,6 +48,7 @@ ALLOWED = {
         "normal",
     },
     "impact": {"speed", "angle_deg", "omega0"},
+    "target": {"radius", "density", "omega0"},
     "solver": {
         "outputs",
         "method",
@@ -149,6 +151,13 @@ def scene_from_dict(data: dict) -> Scene:
         angle_deg=number("impact", "angle_deg", 0.0),
         omega0=number("impact", "omega0", 0.0),
     )
+    target = None
+    if "target" in data:
+        target = Target(
+            radius=number("target", "radius"),
+            density=number("target", "density"),
+            omega0=number("target", "omega0", 0.0),
+        )
     return Scene(
         particle=particle,
         contact=contact,
@@ -156,6 +165,7 @@ def scene_from_dict(data: dict) -> Scene:
         impact=impact,
         solver=_solver(data),
         priors=_priors(data),
+        target=target,
     )
 
 

@@ -50,6 +50,9 @@ def scene_report(scene_arg=None) -> str:
     lines += _particle_and_contact(scene, raw, r, rho, K, mass)
     lines += _model_lines(m)
     speed, angle, omega0 = float(i.speed), float(i.angle_deg), float(i.omega0)
+    if scene.target is not None:  # the relative motion's scales
+        r2, m2 = float(scene.target.radius), float(scene.target.mass)
+        r, mass = r * r2 / (r + r2), mass * m2 / (mass + m2)
     lines += _impact_lines(speed, angle, omega0, r, K, mass)
     params = scene_parameters(scene)
     lines += _solver_lines(scene, params, speed, angle)
@@ -69,6 +72,16 @@ def _particle_and_contact(scene, raw: dict, r, rho, K, mass) -> list[str]:
     lines.append(
         f"  k^2 = {INERTIA_FACTOR} r^2       {_g(INERTIA_FACTOR * r * r)} m^2  (solid sphere)"
     )
+    t = scene.target
+    if t is not None:
+        r2, rho2 = float(t.radius), float(t.density)
+        m2 = rho2 * 4.0 / 3.0 * math.pi * r2**3
+        lines.append("target (a second sphere instead of the wall)")
+        lines.append(f"  radius r2           {_g(r2)} m")
+        lines.append(f"  density             {_g(rho2)} kg/m^3")
+        lines.append(f"  spin omega0         {_g(float(t.omega0))} rad/s")
+        lines.append(f"  reduced radius      {_g(r * r2 / (r + r2))} m  (every contact law)")
+        lines.append(f"  reduced mass        {_g(mass * m2 / (mass + m2))} kg  (normal motion)")
 
     lines.append("contact")
     if "E1" in raw:
@@ -195,7 +208,9 @@ def _terms_lines(terms, m) -> list[str]:
         left.append("tangential motion and friction (normal impact without spin)")
     if terms.tangential and not terms.mindlin:
         left.append('tangential compliance (model.tangential = "rigid")')
-    if terms.rotation:
+    if terms.rotation and terms.target:
+        used.append("rotation of both spheres (the friction turns each at its own radius)")
+    elif terms.rotation:
         used.append("rotation (spin driven by the friction moment)")
     elif terms.tangential:
         left.append("rotation (model.rotation = false)")

@@ -53,6 +53,8 @@ class Terms(eqx.Module):
     # model.normal: "brach_dunn" (the adhesion ring), "dmt" (constant adhesion 2 pi w r) or
     # "jkr" (the JKR force of the contact radius; contact until the snap-off overlap n_c < 0).
     normal: str = eqx.field(static=True, default="brach_dunn")
+    # A second sphere instead of the wall: its spin w2 is a state (with rotation).
+    target: bool = eqx.field(static=True, default=False)
 
     @property
     def has_moments(self):
@@ -74,7 +76,7 @@ class Terms(eqx.Module):
         return self.ring or self.jkr
 
 
-def initial_state(terms: Terms, vt0, w0, dtype):
+def initial_state(terms: Terms, vt0, w0, dtype, w2=0.0):
     zero = jnp.zeros((), dtype)
     y = {"n": zero, "ndot": jnp.ones((), dtype), "peak": zero, "loss_hertz_damping": zero}
     if terms.adhesion_loss:
@@ -85,6 +87,8 @@ def initial_state(terms: Terms, vt0, w0, dtype):
             y["xi"] = zero
         if terms.rotation:
             y["w"] = jnp.asarray(w0, dtype)
+            if terms.target:
+                y["w2"] = jnp.asarray(w2, dtype)
             if terms.has_moments:
                 y["loss_rolling"] = zero
     if not terms.ledger:
@@ -92,7 +96,44 @@ def initial_state(terms: Terms, vt0, w0, dtype):
     return y
 
 
-MOTION = ("n", "ndot", "vt", "w", "xi")
+MOTION = ("n", "ndot", "vt", "w", "w2", "xi")
+
+
+def spins(terms: Terms, y):
+    """``(w, w_roll)``: the particle's spin, and the spin the rolling moments and the ring
+    see, relative to the wall or the second sphere (``w - w2``)."""
+    n = y["n"]
+    if not (terms.tangential and terms.rotation):
+        zero = jnp.zeros_like(n)
+        return zero, zero
+    w = y["w"]
+    return w, (w - y["w2"] if terms.target else w)
+
+
+def slip(terms: Terms, p: ScaledParameters, y, w):
+    """The slip of the contact points, ``vt - r w`` (``- r2 w2`` with a second sphere)."""
+    s = y["vt"] - p.arm * w
+    if terms.target and terms.rotation:
+        s = s - p.arm2 * y["w2"]
+    return s
+
+
+def slip_mass(terms: Terms, p: ScaledParameters):
+    """``m_eff`` of ``s' = F_t / m_eff`` (the tangential force's effect on the slip)."""
+    if not terms.rotation:
+        return 1.0
+    if terms.target:
+        return 1.0 / (1.0 + p.arm**2 / p.inertia + p.arm2**2 / p.inertia2)
+    return p.inertia / (p.inertia + p.arm**2)
+
+
+def spin_rates(terms: Terms, p: ScaledParameters, F_t, M):
+    """``(w', w2')``: the friction's moment ``-r F_t`` and the rolling moment ``M`` turn the
+    particle; a second sphere gets ``-r2 F_t - M``."""
+    wdot = (-p.arm * F_t + M) / p.inertia
+    if not terms.target:
+        return wdot, None
+    return wdot, (-p.arm2 * F_t - M) / p.inertia2
 
 
 def adhesion_potential(terms: Terms, p: ScaledParameters, n):
@@ -169,6 +210,8 @@ def mechanical_energy(terms: Terms, p: ScaledParameters, y):
         e = e + 0.5 * y["vt"] ** 2
         if terms.rotation:
             e = e + 0.5 * p.inertia * y["w"] ** 2
+            if terms.target:
+                e = e + 0.5 * p.inertia2 * y["w2"] ** 2
         if terms.mindlin:
             e = e + tangential_energy(terms, p, y)
     return e
@@ -225,7 +268,7 @@ def friction_limit(terms: Terms, p: ScaledParameters, n, ndot, w):
 def contact_loads(terms: Terms, p: ScaledParameters, y):
     """Every force and moment on the sphere at state ``y`` (a dict; absent terms are left out)."""
     n, ndot = y["n"], y["ndot"]
-    w = y["w"] if (terms.tangential and terms.rotation) else jnp.zeros_like(n)
+    spin, w = spins(terms, y)  # w: relative to the wall or the second sphere
     f, M_A = _normal_loads(terms, p, n, ndot, w)
     if not terms.tangential:
         return f
@@ -245,25 +288,30 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
             M = laws.lambda_moment(n, w, p.radius, p.C_A, p.lam, terms.contact_floor)
         f["M_roll"] = M
     if terms.mindlin:
-        return _mindlin_loads(terms, p, y, f, w, M)
+        return _mindlin_loads(terms, p, y, f, spin, w, M)
     if terms.friction_load == "net":
         load = jnp.abs(f["F_n"])
     else:
         load = -f["F_H"]
-    slip = y["vt"] - p.radius * w
-    # Friction that keeps s = 0 in pure rolling: from s' = F_t (1/m + r^2/(m k^2)) - r M/(m k^2).
-    hold = p.radius * M / (p.inertia + p.radius**2) if terms.has_moments else jnp.zeros_like(n)
     # The pull toward rolling acts on the slip through the effective mass of s' = F_t / m_eff,
     # so that the slip relaxes at the same rate with or without rotation.
-    m_eff = p.inertia / (p.inertia + p.radius**2) if terms.rotation else 1.0
-    f["slip"] = slip
+    m_eff = slip_mass(terms, p)
+    # Friction that keeps s = 0 in pure rolling: from s' = F_t (1/m + r^2/(m k^2)) - r M/(m k^2)
+    # (with a second sphere s' = F_t / m_eff - M (r / k^2 - r2 / k2^2), per unit mass).
+    if not terms.has_moments:
+        hold = jnp.zeros_like(n)
+    elif terms.target:
+        hold = M * (p.arm / p.inertia - p.arm2 / p.inertia2) * m_eff
+    else:
+        hold = p.arm * M / (p.inertia + p.arm**2)
+    f["slip"] = slip(terms, p, y, spin)
     f["F_t"] = laws.friction_force(
-        slip, load, p.friction, hold, terms.slip_width, terms.slip_relaxation * m_eff
+        f["slip"], load, p.friction, hold, terms.slip_width, terms.slip_relaxation * m_eff
     )
     return f
 
 
-def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, w, M):
+def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, spin, w, M):
     """The Mindlin spring: tangential force ``-k_t xi``, its normal force and the slip rate.
 
     The spring has the potential ``U = k_t(n) xi^2 / 2``, so besides the tangential force it
@@ -279,7 +327,11 @@ def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, w, M):
     f["F_U"] = -0.5 * dk_dn * xi * xi
     f["F_n"] = f["F_n"] + f["F_U"]
     F_t = -k_t * xi
-    wdot = (-p.radius * F_t + M) / p.inertia if terms.rotation else jnp.zeros_like(n)
+    wdot = jnp.zeros_like(n)  # the rate of the spin the ring sees
+    if terms.rotation:
+        wdot, w2dot = spin_rates(terms, p, F_t, M)
+        if terms.target:
+            wdot = wdot - w2dot
 
     def limit_of(n_, ndot_, w_):
         return friction_limit(terms, p, n_, ndot_, w_)
@@ -289,12 +341,11 @@ def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, w, M):
     ok = k_t > 0
     safe_k = jnp.where(ok, k_t, 1.0)
     cap_rate = jnp.where(ok, (limit_rate - limit * dk_dn * ndot / safe_k) / safe_k, 0.0)
-    slip = y["vt"] - p.radius * w
-    f["slip"] = slip
+    f["slip"] = slip(terms, p, y, spin)
     f["F_t"] = F_t
     f["k_t"] = k_t
     f["slip_rate"] = laws.mindlin_slip_rate(
-        xi, slip, limit, k_t, cap_rate, terms.cap_width, terms.slip_width
+        xi, f["slip"], limit, k_t, cap_rate, terms.cap_width, terms.slip_width
     )
     return f
 
@@ -333,7 +384,9 @@ class ImpactField(eqx.Module):
             dy["slide_time"] = jnp.where(still_sliding, 1.0, 0.0).astype(ndot.dtype)
             if terms.rotation:
                 M = f.get("M_roll", jnp.zeros_like(ndot))
-                dy["w"] = (-p.radius * f["F_t"] + M) / p.inertia
+                dy["w"], w2dot = spin_rates(terms, p, f["F_t"], M)
+                if terms.target:
+                    dy["w2"] = w2dot
                 if terms.has_moments:
-                    dy["loss_rolling"] = -M * y["w"]
+                    dy["loss_rolling"] = -M * spins(terms, y)[1]
         return {k: dy[k] for k in y}  # the states this impact carries (see Terms.ledger)

@@ -89,7 +89,11 @@ RANGES = {
     "friction": Range(0.0, 10.0, "1"),
     "lambda": Range(0.0, 100.0, "N m"),
     "G_star": Range(0.0, 1e13, "Pa"),  # 0: not given (needed > 0 by tangential = "mindlin")
-    "w": Range(0.0, 1e4, "J/m^2"),  # work of adhesion of model.normal = "dmt"
+    "w": Range(0.0, 1e4, "J/m^2"),  # work of adhesion of model.normal = "dmt" or "jkr"
+    # the second sphere of a sphere-sphere impact ([target])
+    "radius2": Range(1e-9, 1e12, "m"),
+    "density2": Range(0.0, 1e30, "kg/m^3", lo_closed=False),
+    "omega2": Range(-1e9, 1e9, "rad/s"),
     "E": Range(0.0, 1e13, "Pa", lo_closed=False),
     "nu": Range(-1.0, 0.5, "1", lo_closed=False),
     "zeta": Range(0.0, 1e6, "1"),

@@ -113,6 +113,32 @@ class Particle(eqx.Module):
         return self.density * (4.0 / 3.0) * jnp.pi * self.radius**3
 
 
+class Target(eqx.Module):
+    """A second sphere struck instead of the flat wall (sphere-sphere impacts).
+
+    **Arguments:** `radius` (m, > 0), `density` (kg/m^3, > 0), `omega0` (rad/s, its spin
+    before the impact, in the sense of ``impact.omega0``: the spin that rolls the partner
+    under the particle is positive). The normal motion is the relative one, with the reduced
+    radius ``r r2 / (r + r2)`` in every contact law and the reduced mass ``m m2 / (m + m2)``;
+    the friction turns both spheres, and the rolling moments oppose their relative spin. A
+    very large ``radius`` (and ``density``) is the flat wall.
+    """
+
+    radius: jax.Array = eqx.field(converter=_numbers("target.radius"))
+    density: jax.Array = eqx.field(converter=_numbers("target.density"))
+    omega0: jax.Array = eqx.field(converter=_numbers("target.omega0"), default=0.0)
+
+    def __check_init__(self):
+        check_input("target.radius", "radius2", self.radius)
+        check_input("target.density", "density2", self.density)
+        check_input("target.omega0", "omega2", self.omega0)
+
+    @property
+    def mass(self):
+        """Mass ``rho 4/3 pi r^3`` (kg)."""
+        return self.density * (4.0 / 3.0) * jnp.pi * self.radius**3
+
+
 class Contact(eqx.Module):
     """Contact constants of the sphere-surface pair.
 
@@ -252,6 +278,9 @@ SCENE_ARRAYS = (
     ("contact", "G_star"),
     ("contact", "w"),
     ("model", "lambda_"),
+    ("target", "radius"),
+    ("target", "density"),
+    ("target", "omega0"),
 )
 
 
@@ -274,6 +303,8 @@ def check_simulate_arguments(scene, speed=None, angle_deg=None, omega0=None) -> 
         if value is not None:
             shapes[name] = _argument_shape(name, value)
     for section, field in SCENE_ARRAYS:
+        if getattr(scene, section) is None:
+            continue
         shapes[f"{section}.{field.rstrip('_')}"] = tuple(
             np.shape(getattr(getattr(scene, section), field))
         )
@@ -365,8 +396,15 @@ class Scene(eqx.Module):
     # ((name, "loguniform:LO:HI" | "normal:MU:SD"), ...): the scene file's [priors], read by
     # `fitting.sample_posterior`; the simulation ignores them.
     priors: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
+    # A second sphere struck instead of the flat wall (None: the wall).
+    target: Target | None = None
 
     def __check_init__(self):
+        if self.model.tangential == "mindlin" and self.target is not None:
+            raise SceneError(
+                'model.tangential = "mindlin" is not available with a [target] sphere yet '
+                "(docs/open_points.md)"
+            )
         if self.model.tangential == "mindlin" and self.model.normal == "jkr":
             raise SceneError(
                 'model.tangential = "mindlin" is not available with model.normal = "jkr" yet '
@@ -411,6 +449,8 @@ class Scene(eqx.Module):
         new = self
         for section, fields in sections.items():
             part = getattr(self, section)
+            if part is None:
+                raise SceneError(f"the scene has no [{section}] to replace fields of")
             kwargs = {f: getattr(part, f) for f in part.__dataclass_fields__}
             unknown = set(fields) - set(kwargs)
             if unknown:

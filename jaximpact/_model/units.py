@@ -46,6 +46,11 @@ class ScaledParameters(eqx.Module):
     inertia: jax.Array  # k^2 = kappa r^2
     G_star: jax.Array | None = None  # only with the Mindlin tangential spring
     w_adhesion: jax.Array | None = None  # only with the DMT normal law (a force per length)
+    # The particle's moment arm (its radius; ``radius`` is the contact's, the reduced radius
+    # of a sphere-sphere impact) and, with a second sphere, its arm and ``k^2 m2 / m*``.
+    arm: jax.Array | None = None
+    arm2: jax.Array | None = None
+    inertia2: jax.Array | None = None
 
     @staticmethod
     def from_si(
@@ -61,9 +66,18 @@ class ScaledParameters(eqx.Module):
         inertia_factor,
         G_star=None,
         w_adhesion=None,
+        target=None,
     ):
+        """``target``: ``(r1, m1, r2, m2)`` (SI) of a sphere-sphere impact, whose contact radius
+        ``radius`` is the reduced one and mass unit ``u.mass`` the reduced mass."""
         L, T, m = u.length, u.time, u.mass
         r = radius / L
+        arm, arm2, inertia, inertia2 = r, None, inertia_factor * r * r, None
+        if target is not None:
+            r1, m1, r2, m2 = target
+            arm, arm2 = r1 / L, r2 / L
+            inertia = inertia_factor * (m1 / m) * arm * arm
+            inertia2 = inertia_factor * (m2 / m) * arm2 * arm2
         return ScaledParameters(
             radius=r,
             K=K * L * T**2 / m,
@@ -72,7 +86,10 @@ class ScaledParameters(eqx.Module):
             C_H=C_H * L / T,
             friction=jnp.asarray(friction),
             lam=lam * T**2 / (m * L**2),
-            inertia=inertia_factor * r * r,
+            inertia=inertia,
             G_star=None if G_star is None else G_star * L * T**2 / m,
             w_adhesion=None if w_adhesion is None else w_adhesion * T**2 / m,
+            arm=arm,
+            arm2=arm2,
+            inertia2=inertia2,
         )

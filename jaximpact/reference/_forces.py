@@ -11,7 +11,8 @@ from ._params import Params
 
 def hertz_scales(p: Params, v_n: float) -> tuple[float, float]:
     """Peak overlap n* of an undamped, non-adhesive Hertz impact at normal speed v_n, and n*/v_n."""
-    n_star = (5.0 * p.mass * v_n**2 / (4.0 * p.K * math.sqrt(p.radius))) ** 0.4
+    m, r = p.reduced_mass, p.reduced_radius
+    n_star = (5.0 * m * v_n**2 / (4.0 * p.K * math.sqrt(r))) ** 0.4
     return n_star, n_star / v_n
 
 
@@ -41,7 +42,7 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
         return _jkr_forces(p, n, ndot, w, out)
     if not n > 0:
         return out
-    r = p.radius
+    r = p.reduced_radius
     a = math.sqrt(r * n)
     hertz = p.K * math.sqrt(r) * n**1.5
     out["F_H"] = -hertz
@@ -70,7 +71,7 @@ def _jkr_forces(p: Params, n: float, ndot: float, w: float, out: dict) -> dict:
     Hertzian part ``K a^3 / r`` damped by ``C_H``, adhesive part ``sqrt(6 pi w K a^3)``."""
     if not n > p.separation_overlap:
         return out
-    r, E = p.radius, 0.75 * p.K
+    r, E = p.reduced_radius, 0.75 * p.K
     a = jkr.contact_radius(n, r, E, p.w)
     hertz = p.K * a**3 / r
     out["F_H"] = -hertz
@@ -88,7 +89,7 @@ def _jkr_forces(p: Params, n: float, ndot: float, w: float, out: dict) -> dict:
 
 def _jkr_energy(p: Params, a: float) -> float:
     """An antiderivative in ``a`` of ``P(a) dn/da`` (docs/physics.md, "Normal laws")."""
-    r, K, w = p.radius, p.K, p.w
+    r, K, w = p.reduced_radius, p.K, p.w
     return (
         0.4 * K * a**5 / r**2
         - 8.0 / (3.0 * r) * math.sqrt(3.0 * math.pi * w * K / 8.0) * a**3.5
@@ -100,15 +101,16 @@ def normal_potential(p: Params, n: float) -> float:
     """V(n), the potential of F_H + F_A (zero out of contact; continuous at 0 for DMT too; for
     JKR zero at first touch, ``n = 0``)."""
     if p.jkr:
-        r, E = p.radius, 0.75 * p.K
+        r, E = p.reduced_radius, 0.75 * p.K
         a = jkr.contact_radius(max(n, p.separation_overlap), r, E, p.w)
         lam = (p.w * r * r / E) ** (1.0 / 3.0)
         return _jkr_energy(p, a) - _jkr_energy(p, (2.0 * math.pi) ** (1.0 / 3.0) * lam)
     if not n > 0:
         return 0.0
-    v = 0.4 * p.K * math.sqrt(p.radius) * n**2.5
+    r = p.reduced_radius
+    v = 0.4 * p.K * math.sqrt(r) * n**2.5
     if p.adhesion and p.normal == "dmt":
-        v -= 2.0 * math.pi * p.w * p.radius * n
+        v -= 2.0 * math.pi * p.w * r * n
     elif p.adhesion:
-        v -= 4.0 / 3.0 * math.pi * p.f0 * math.sqrt(p.radius) * n**1.5
+        v -= 4.0 / 3.0 * math.pi * p.f0 * math.sqrt(r) * n**1.5
     return v

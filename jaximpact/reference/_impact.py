@@ -49,11 +49,11 @@ def simulate_impact(
             p, speed, angle_deg, omega0, rtol=rtol, atol=atol, method=method, t_max=t_max,
             detect_capture=detect_capture, max_segments=max_segments,
         )  # fmt: skip
-    model = _Model(p)
-    m, r = model.m, model.r
     th = math.radians(angle_deg)
     v_n, v_t = speed * math.cos(th), speed * math.sin(th)
     w0 = float(omega0) if p.rotation else 0.0
+    model = _Model(p, v_t, w0)
+    m, r = model.m, model.r
     S, L, T, atol_vec = _rigid_scales(model, p, speed, v_n, v_t, w0, atol)
     if t_max is None:
         t_max = 1000.0 * T
@@ -64,8 +64,11 @@ def simulate_impact(
     n_c = p.separation_overlap
     n0 = 0.0 if p.jkr else n_eps
     t = n0 / v_n
-    y = np.array([n0, v_n, v_t - r * w0 if p.rotation else v_t, w0, 0, 0, 0, 0], dtype=float)
-    energy_in = 0.5 * m * speed**2 + 0.5 * m * model.k2 * w0**2
+    s0 = v_t - r * w0 if p.rotation else v_t
+    if model.pair:
+        s0 -= p.radius2 * p.omega2
+    y = np.array([n0, v_n, s0, w0, 0, 0, 0, 0], dtype=float)
+    energy_in = 0.5 * m * v_n**2 + model.tangential_energy(y)
     mode, roll_time = _initial_mode(model, y)
 
     run = _RigidRun(model, S, L, T, rtol, atol_vec, method, history, detect_capture, n_eps, n_c)

@@ -44,10 +44,17 @@ class Params:
     # down to the snap-off overlap (< 0)
     normal: str = "brach_dunn"
     w: float = 0.0  # J/m^2, work of adhesion (dmt and jkr)
+    # A second sphere struck instead of the wall (radius2 = inf: the wall): radius (m),
+    # density (kg/m^3) and its spin before the impact (rad/s, the sense of omega0)
+    radius2: float = math.inf
+    density2: float = 1.0
+    omega2: float = 0.0
 
     def __post_init__(self):
         if self.normal not in NORMAL_LAWS:
             raise ValueError(f"normal must be one of {NORMAL_LAWS}")
+        if self.target and self.tangential == "mindlin":
+            raise ValueError("tangential = 'mindlin' is not available with a second sphere")
         if self.normal == "jkr" and self.tangential == "mindlin":
             raise ValueError("tangential = 'mindlin' is not available with normal = 'jkr'")
         if self.tangential not in ("rigid", "mindlin"):
@@ -58,12 +65,35 @@ class Params:
             raise ValueError(f"rolling_moments must be one of {ROLLING_MOMENTS}")
         if self.friction_load not in FRICTION_LOADS:
             raise ValueError(f"friction_load must be one of {FRICTION_LOADS}")
-        for name in ("radius", "density", "K", "kappa"):
+        for name in ("radius", "density", "K", "kappa", "radius2", "density2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
         for name in ("f0", "C_A", "C_H", "friction", "lam", "w"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0")
+
+    @property
+    def target(self) -> bool:
+        """A second sphere instead of the wall."""
+        return math.isfinite(self.radius2)
+
+    @property
+    def reduced_radius(self) -> float:
+        """The contact's radius: ``r r2 / (r + r2)`` (the sphere's own on the wall)."""
+        if not self.target:
+            return self.radius
+        return self.radius * self.radius2 / (self.radius + self.radius2)
+
+    @property
+    def mass2(self) -> float:
+        return self.density2 * 4.0 / 3.0 * math.pi * self.radius2**3
+
+    @property
+    def reduced_mass(self) -> float:
+        """The normal motion's mass: ``m m2 / (m + m2)`` (the sphere's own on the wall)."""
+        if not self.target:
+            return self.mass
+        return self.mass * self.mass2 / (self.mass + self.mass2)
 
     @property
     def ring(self) -> bool:
@@ -76,9 +106,10 @@ class Params:
         if not self.adhesion:
             return 0.0
         if self.normal == "dmt":
-            return (2.0 * math.pi * self.w * math.sqrt(self.radius) / self.K) ** (2.0 / 3.0)
+            r = self.reduced_radius
+            return (2.0 * math.pi * self.w * math.sqrt(r) / self.K) ** (2.0 / 3.0)
         if self.normal == "jkr":  # the overlap scale mu = (w^2 R / E^2)^(1/3)
-            return (self.w**2 * self.radius / (0.75 * self.K) ** 2) ** (1.0 / 3.0)
+            return (self.w**2 * self.reduced_radius / (0.75 * self.K) ** 2) ** (1.0 / 3.0)
         return 2.0 * math.pi * self.f0 / self.K
 
     @property
@@ -93,7 +124,7 @@ class Params:
             return 0.0
         from .jkr import snap_off
 
-        return snap_off(self.radius, 0.75 * self.K, self.w)[1]
+        return snap_off(self.reduced_radius, 0.75 * self.K, self.w)[1]
 
     @property
     def jkr_barrier(self) -> float:
@@ -103,7 +134,7 @@ class Params:
             return 0.0
         from .jkr import energy_loss
 
-        return energy_loss(self.radius, 0.75 * self.K, self.w)
+        return energy_loss(self.reduced_radius, 0.75 * self.K, self.w)
 
     @property
     def mass(self) -> float:

@@ -24,21 +24,57 @@ class _Model:
     ``tdot - r w``), which the switching logic relies on.
     """
 
-    def __init__(self, p: Params):
+    def __init__(self, p: Params, vt0: float = 0.0, w0: float = 0.0):
         self.p = p
-        self.m = p.mass
+        self.m = p.reduced_mass  # the relative motion's (the sphere's own on the wall)
         self.r = p.radius
         self.k2 = p.k2 if p.rotation else 0.0
         self.f = p.friction
+        # A second sphere (p.target, with rotation): its spin follows from the pair's angular
+        # momentum, I1 (w - w0) + I2 (w2 - w20) + (r + r2) m* (vt - vt0) = 0 (no extra state).
+        self.pair = p.target and p.rotation
+        if self.pair:
+            self.I1, self.r2 = p.mass * p.k2, p.radius2
+            self.I2 = p.mass2 * p.kappa * p.radius2**2
+            self.start = (vt0, w0, p.omega2)
+            # s' = F_t / m_slip - M * lever in rolling: 1/m_slip = 1/m* + r^2/I1 + r2^2/I2
+            self.inv_m_slip = 1.0 / self.m + self.r**2 / self.I1 + self.r2**2 / self.I2
+            self.lever = self.r / self.I1 - self.r2 / self.I2
 
     def slip(self, y) -> float:
         return y[2]
 
+    def spin2(self, y) -> float:
+        """The second sphere's spin (0 on the wall)."""
+        if not self.pair:
+            return 0.0
+        vt0, w0, w20 = self.start
+        return (
+            w20
+            - ((self.r + self.r2) * self.m * (self.tdot(y) - vt0) + self.I1 * (y[3] - w0)) / self.I2
+        )
+
+    def ring_spin(self, y) -> float:
+        """The spin the ring and the rolling moments see: relative to the second sphere."""
+        return y[3] - self.spin2(y) if self.pair else y[3]
+
+    def forces(self, y) -> dict:
+        return contact_forces(self.p, y[0], y[1], self.ring_spin(y))
+
     def tdot(self, y) -> float:
-        return y[2] + self.r * y[3] if self.p.rotation else y[2]
+        if not self.pair:
+            return y[2] + self.r * y[3] if self.p.rotation else y[2]
+        # vt = s + r w + r2 w2(vt, w), solved for vt (w2 is linear in vt)
+        vt0, w0, w20 = self.start
+        a = (self.r + self.r2) * self.m / self.I2
+        b = self.I1 / self.I2
+        top = y[2] + self.r * y[3] + self.r2 * (w20 + a * vt0 - b * (y[3] - w0))
+        return top / (1.0 + self.r2 * a)
 
     def required_force(self, M: float) -> float:
         """Friction that keeps s' = 0 (pure rolling)."""
+        if self.pair:
+            return M * self.lever / self.inv_m_slip
         return self.r * M / (self.k2 + self.r**2) if self.p.rotation else 0.0
 
     def friction_force(self, mode: int, fc: dict) -> float:
@@ -49,12 +85,16 @@ class _Model:
         return 0.0
 
     def rhs(self, y, mode: int) -> list:
-        n, ndot, w = y[0], y[1], y[3]
-        fc = contact_forces(self.p, n, ndot, w)
+        ndot, w = y[1], y[3]
+        fc = self.forces(y)
         F_t = self.friction_force(mode, fc)
         M = fc["M"]
         s = y[2]
-        if self.p.rotation:
+        if self.pair:
+            wdot = (-self.r * F_t + M) / self.I1
+            sdot = 0.0 if mode == _ROLL else F_t * self.inv_m_slip - M * self.lever
+            w = self.ring_spin(y)  # the rolling moment's power
+        elif self.p.rotation:
             wdot = (-self.r * F_t + M) / (self.m * self.k2)
             # s' = tddot - r wdot, written so that it is exactly zero in pure rolling
             sdot = (
@@ -85,8 +125,15 @@ class _Model:
         return self.normal_energy(y) - self.p.jkr_barrier
 
     def mechanical_energy(self, y) -> float:
-        ke_t = 0.5 * self.m * self.tdot(y) ** 2
-        return self.normal_energy(y) + ke_t + 0.5 * self.m * self.k2 * y[3] ** 2
+        return self.normal_energy(y) + self.tangential_energy(y)
+
+    def tangential_energy(self, y) -> float:
+        """Kinetic energy of the tangential motion and the spins."""
+        if self.pair:
+            return 0.5 * (
+                self.m * self.tdot(y) ** 2 + self.I1 * y[3] ** 2 + self.I2 * self.spin2(y) ** 2
+            )
+        return 0.5 * self.m * (self.tdot(y) ** 2 + self.k2 * y[3] ** 2)
 
     def decide(self, y, h_look: float = 0.0) -> int:
         """Mode at zero slip: roll if friction can hold it, else slide against the imbalance.
@@ -103,7 +150,7 @@ class _Model:
             return _ROLL
 
         def holds(z):
-            fc = contact_forces(self.p, z[0], z[1], z[3])
+            fc = self.forces(z)
             return abs(self.required_force(fc["M"])) <= self.f * fc["N"], fc
 
         ok, fc = holds(y)
@@ -118,12 +165,15 @@ class _Model:
         ledger stays exact.
         """
         y = np.array(y, dtype=float)
-        ke0 = 0.5 * self.m * (self.tdot(y) ** 2 + self.k2 * y[3] ** 2)
-        if self.p.rotation:
+        ke0 = self.tangential_energy(y)
+        if self.pair:
+            J = -y[2] / self.inv_m_slip  # the impulse that takes s to zero
+            y[3] -= self.r * J / self.I1
+        elif self.p.rotation:
             dv = -y[2] / (1.0 + self.r**2 / self.k2)  # impulse / m; s changes by -s
             y[3] -= self.r * dv / self.k2
         y[2] = 0.0
-        y[6] -= 0.5 * self.m * (self.tdot(y) ** 2 + self.k2 * y[3] ** 2) - ke0
+        y[6] -= self.tangential_energy(y) - ke0
         return y
 
     def kink_functions(self) -> list:
@@ -132,8 +182,9 @@ class _Model:
         out = []
         if p.ring and p.f0 * p.C_A > 0:
             if p.rolling_moments == "analytical":
-                out.append(lambda y: y[1] - y[3] * math.sqrt(self.r * max(y[0], 0.0)))
-                out.append(lambda y: y[1] + y[3] * math.sqrt(self.r * max(y[0], 0.0)))
+                r = p.reduced_radius
+                out.append(lambda y: y[1] - self.ring_spin(y) * math.sqrt(r * max(y[0], 0.0)))
+                out.append(lambda y: y[1] + self.ring_spin(y) * math.sqrt(r * max(y[0], 0.0)))
             else:
                 out.append(lambda y: y[1])
         if self.f > 0 and p.friction_load == "net":
@@ -141,7 +192,7 @@ class _Model:
         return out
 
     def normal_force(self, y) -> float:
-        return contact_forces(self.p, y[0], y[1], y[3])["F_n"]
+        return self.forces(y)["F_n"]
 
     def mode_functions(self, mode: int, sign_fn: float) -> list:
         """(function, next mode or None to decide) pairs whose downward zero ends the mode.
@@ -160,7 +211,7 @@ class _Model:
         if mode == _ROLL and p.rotation and moments:
 
             def load_and_req(y):
-                fc = contact_forces(p, y[0], y[1], y[3])
+                fc = self.forces(y)
                 load = sign_fn * fc["F_n"] if p.friction_load == "net" else fc["N"]
                 return self.f * load, self.required_force(fc["M"])
 

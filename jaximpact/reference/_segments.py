@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._forces import contact_forces
 from ._rigid import _Model
 
 _N_EPS = (
@@ -50,7 +49,7 @@ def _fired_events(specs, sol) -> list:
 
 
 def _history_row(model: _Model, y, mode: int) -> list:
-    fc = contact_forces(model.p, y[0], y[1], y[3])
+    fc = model.forces(y)
     F_t = model.friction_force(mode, fc) if y[0] > 0 else 0.0
     return [y[0], y[1], model.tdot(y), y[3], y[2], fc["F_n"], F_t, fc["M"], fc["N"], mode]
 
