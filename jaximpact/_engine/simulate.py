@@ -43,7 +43,8 @@ T_MAX = 1e5  # in Hertz times; the step limit, not this, bounds a slow impact
 
 def scene_parameters(scene: Scene) -> dict:
     """The scene's float parameters by their impacts-CSV column names (and ``G_star`` when the
-    scene uses the Mindlin tangential spring, ``w`` with the DMT normal law)."""
+    scene uses the Mindlin tangential spring, ``w`` with the DMT or JKR normal law,
+    ``radius2``, ``density2`` and ``omega2`` with a second sphere)."""
     params = {
         "radius": scene.particle.radius,
         "density": scene.particle.density,
