@@ -65,8 +65,7 @@ def clean_data(law):
 def write_data(path, values, sigma):
     rows = ["speed,angle_deg,observable,value,sigma"]
     rows += [
-        f"{float(s)!r},0.0,cor_n,{float(v)!r},{sigma}"
-        for s, v in zip(SPEEDS, values, strict=True)
+        f"{float(s)!r},0.0,cor_n,{float(v)!r},{sigma}" for s, v in zip(SPEEDS, values, strict=True)
     ]
     Path(path).write_text("\n".join(rows) + "\n")
 

@@ -342,7 +342,7 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
     dv = jnp.clip(-m_eff * slip, -impulse, impulse)  # -m_eff slip brings the slip to zero
     out = {"vt": vt + dv, "loss_friction": -dv * slip - 0.5 * dv * dv / m_eff}
     if terms.rotation:
-        out["w"] = w - p.arm * dv / p.inertia
+        out["w"] = w - dyn.moment_arm(p) * dv / p.inertia
         if terms.target:  # the second sphere takes the opposite impulse at its own arm
             out["w2"] = y["w2"] - p.arm2 * dv / p.inertia2
     return out

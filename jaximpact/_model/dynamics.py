@@ -110,9 +110,15 @@ def spins(terms: Terms, y):
     return w, (w - y["w2"] if terms.target else w)
 
 
+def moment_arm(p: ScaledParameters):
+    """The particle's moment arm (its radius; given apart from the contact's radius only with
+    a second sphere)."""
+    return p.radius if p.arm is None else p.arm
+
+
 def slip(terms: Terms, p: ScaledParameters, y, w):
     """The slip of the contact points, ``vt - r w`` (``- r2 w2`` with a second sphere)."""
-    s = y["vt"] - p.arm * w
+    s = y["vt"] - moment_arm(p) * w
     if terms.target and terms.rotation:
         s = s - p.arm2 * y["w2"]
     return s
@@ -124,13 +130,13 @@ def slip_mass(terms: Terms, p: ScaledParameters):
         return 1.0
     if terms.target:
         return 1.0 / (1.0 + p.arm**2 / p.inertia + p.arm2**2 / p.inertia2)
-    return p.inertia / (p.inertia + p.arm**2)
+    return p.inertia / (p.inertia + moment_arm(p) ** 2)
 
 
 def spin_rates(terms: Terms, p: ScaledParameters, F_t, M):
     """``(w', w2')``: the friction's moment ``-r F_t`` and the rolling moment ``M`` turn the
     particle; a second sphere gets ``-r2 F_t - M``."""
-    wdot = (-p.arm * F_t + M) / p.inertia
+    wdot = (-moment_arm(p) * F_t + M) / p.inertia
     if not terms.target:
         return wdot, None
     return wdot, (-p.arm2 * F_t - M) / p.inertia2
@@ -303,7 +309,7 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
     elif terms.target:
         hold = M * (p.arm / p.inertia - p.arm2 / p.inertia2) * m_eff
     else:
-        hold = p.arm * M / (p.inertia + p.arm**2)
+        hold = moment_arm(p) * M / (p.inertia + moment_arm(p) ** 2)
     f["slip"] = slip(terms, p, y, spin)
     f["F_t"] = laws.friction_force(
         f["slip"], load, p.friction, hold, terms.slip_width, terms.slip_relaxation * m_eff
