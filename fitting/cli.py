@@ -249,7 +249,7 @@ def cmd_fit(args) -> int:
     import jaximpact
     from jaximpact._io.scene_files import describe_scene_source
 
-    from ._least_squares.objective import FITTABLE, check_names
+    from ._least_squares.objective import FITTABLE, FitError, check_names
     from ._least_squares.report import (
         plot_fit,
         result_dict,
@@ -260,7 +260,9 @@ def cmd_fit(args) -> int:
     params = split_names("--params", args.params, FITTABLE)
     scene_path, data_path = _fit_files(args)
     names = check_names(params)
-    priors = _parse_priors(args.prior, names) if args.posterior else {}
+    # With --compare a prior may be for a parameter only another model fits (checked below).
+    own = [p for p in args.prior if not args.compare or p.partition("=")[0].strip() in names]
+    priors = _parse_priors(own, names) if args.posterior else {}
     posterior_outputs = (
         (args.draws, "draws file"),
         (args.corner, "corner plot"),
@@ -270,6 +272,11 @@ def cmd_fit(args) -> int:
     _check_fit_options(args, names, posterior_outputs)
     scene = jaximpact.load_scene(scene_path)
     alternatives = _compared_models(args, names, scene_path)
+    fitted = set(names).union(*(set(m[1]) for m in alternatives.values()))
+    for spec in args.prior:
+        name = spec.partition("=")[0].strip()
+        if args.compare and name not in fitted:
+            raise FitError(f"--prior {name}: not among the fitted parameters of any model")
     if args.posterior:  # a bad prior in the scene's [priors] must not cost the fit either
         from ._bayesian.priors import priors_for
 

@@ -218,3 +218,16 @@ def test_compare_by_law_name_maps_the_fitted_names():
     assert _law_names(("w", "C_H"), "jkr", "brach_dunn") == ("f0", "C_A", "C_H")
     with pytest.raises(FitError, match="f0 is the Brach-Dunn ring's"):
         _compared_models(SimpleNamespace(compare=["dmt=f0,C_H"], prior=[]), ("f0",), None)
+
+
+def test_compare_prior_for_another_models_parameter(capsys):
+    """With ``--compare`` a ``--prior`` may name a parameter only a compared model fits (``w``
+    of the DMT law), and one that no model fits is refused before any computing."""
+    from jaximpact.cli import main
+
+    base = ["fit", "kharaz2001", "--params", "friction", "--posterior", "--no-progress"]
+    code = main([*base, "--compare", "dmt=friction,w", "--prior", "K=loguniform:1e9:1e12"])
+    assert code == 2
+    assert "--prior K: not among the fitted parameters of any model" in capsys.readouterr().err
+    code = main([*base, "--prior", "w=loguniform:1e-3:10"])
+    assert code == 2 and "--prior w" in capsys.readouterr().err
