@@ -124,5 +124,11 @@ def test_comparison_summary_says_which_differences_exceed_two_standard_errors():
     ])  # fmt: skip
     assert "a.toml predicts better than b.toml" in text
     assert "a.toml and c.toml: within 2 standard errors" in text
+    flagged = comparison_summary([
+        row("a.toml", 40.0, 0.0, 0.0), row("d.toml", 30.0, -10.0, 4.0, ["k above 0.7"]),
+    ])  # fmt: skip
+    assert "a.toml predicts better than d.toml (more than 2 standard errors of the " \
+        "difference), but the estimate includes observations with Pareto k above 0.7" \
+        in flagged  # fmt: skip
     assert "c.toml: 1 observation(s) with Pareto k above 0.7" in text
     assert text.splitlines()[2].split()[:2] == ["a.toml", "40.00"]

@@ -331,11 +331,21 @@ def comparison_summary(rows: list[dict]) -> str:
         )
     lines += [f"  {r['name']}: {p}" for r in rows for p in r["problems"]]
     best, *others = rows
-    clear = [r["name"] for r in others if r["elpd_diff"] < -2.0 * r["se_diff"]]
-    close = [r["name"] for r in others if r["name"] not in clear]
+    ahead = [r for r in others if r["elpd_diff"] < -2.0 * r["se_diff"]]
+    # A lead that rests in part on unreliable leave-one-out terms says so.
+    clear = [r["name"] for r in ahead if not (best["problems"] or r["problems"])]
+    flagged = [r["name"] for r in ahead if r["name"] not in clear]
+    close = [r["name"] for r in others if r not in ahead]
     if clear:
         lines.append(f"  {best['name']} predicts better than {', '.join(clear)} (more than "
                      "2 standard errors of the difference)")  # fmt: skip
+    if flagged:
+        lines.append(
+            f"  {best['name']} predicts better than {', '.join(flagged)} (more than 2 standard "
+            "errors of the difference), but the estimate includes observations with Pareto k "
+            "above 0.7 (listed above): not reliable where the difference is near 2 standard "
+            "errors"
+        )
     if close:
         lines.append(f"  {best['name']} and {', '.join(close)}: within 2 standard errors of "
                      "the difference (the data do not tell them apart)")  # fmt: skip
