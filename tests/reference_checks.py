@@ -52,7 +52,9 @@ def check_derivatives(scene, params, speed, angle, omega0, inputs, tol=1e-4):
     r = params.radius
     jac = ji.output_jacobian(scene, speed, angle, omega0, inputs=inputs)
     exact, err = ref.output_derivatives(params, speed, angle, omega0, inputs=inputs)
-    x = {"speed": speed, "angle_deg": 180 / math.pi}
+    x = {"speed": speed, "angle_deg": 180 / math.pi, "omega0": speed / r}
+    if params.target:
+        x["omega2"] = speed / params.radius2
     for name in inputs:
         if name not in x:
             x[name] = getattr(params, "lam" if name == "lambda" else name)

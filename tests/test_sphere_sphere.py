@@ -79,12 +79,13 @@ def test_oblique_spinning_impacts_match_the_reference(r2, rho2, omega2):
 
 
 def test_derivatives_with_a_second_sphere_match_the_reference():
-    """``d/dC_H``, friction, speed and angle of a spinning oblique rebound on a second sphere
-    against the reference's central differences."""
+    """``d/dC_H``, friction, speed, angle and the target's radius, density and spin of a
+    spinning oblique rebound on a second sphere against the reference's central
+    differences."""
     r2, rho2 = 50e-6, 2500.0
     scene = with_target(ji.table1_scene(), r2, rho2, 5e3)
     p = ref.table1_params(radius2=r2, density2=rho2, omega2=5e3)
-    inputs = ("C_H", "friction", "speed", "angle_deg")
+    inputs = ("C_H", "friction", "speed", "angle_deg", "radius2", "density2", "omega2")
     check_derivatives(scene, p, 1.0, 35.0, 0.1 * 1.0 / R, inputs)
 
 

@@ -19,7 +19,11 @@ _SECTIONS = {
     "radius": ("particle", "radius"), "density": ("particle", "density"),
     "lambda": ("model", "lambda_"),
     "G_star": ("contact", "G_star"),  # model.tangential = "mindlin" only
-    "w": ("contact", "w"),  # model.normal = "dmt" only
+    "w": ("contact", "w"),  # model.normal = "dmt" or "jkr" only
+    # a second sphere ([target]) only
+    "radius2": ("target", "radius"),
+    "density2": ("target", "density"),
+    "omega2": ("target", "omega0"),
 }  # fmt: skip
 
 
@@ -55,7 +59,11 @@ def output_jacobian(
     size = speed.shape[0]
     current = {
         "speed": speed, "angle_deg": angle_deg, "omega0": omega0,
-        **{k: getattr(getattr(scene, s), f) for k, (s, f) in _SECTIONS.items()},
+        **{
+            k: getattr(getattr(scene, s), f)
+            for k, (s, f) in _SECTIONS.items()
+            if getattr(scene, s) is not None
+        },
     }  # fmt: skip
     x0 = jnp.stack(
         [jnp.broadcast_to(jnp.asarray(current[k], speed.dtype), (size,)) for k in inputs]

@@ -91,6 +91,8 @@ def output_derivatives(
         x0["G_star"] = p.G_star
     if p.normal in ("dmt", "jkr"):
         x0["w"] = p.w
+    if p.target:
+        x0.update(radius2=p.radius2, density2=p.density2, omega2=p.omega2)
 
     def run(name, value):
         x = dict(x0, **{name: value})
@@ -113,6 +115,8 @@ def output_derivatives(
         return _outputs(res, x["speed"], x["angle_deg"])
 
     steps = {"angle_deg": rel_step * 180.0 / math.pi, "omega0": rel_step * speed / p.radius}
+    if p.target:
+        steps["omega2"] = rel_step * speed / p.radius2
     jac = {k: {} for k in DERIVATIVE_OUTPUTS}
     err = {k: {} for k in DERIVATIVE_OUTPUTS}
     for name in inputs:
