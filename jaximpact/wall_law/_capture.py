@@ -140,14 +140,24 @@ def scene_with(scene, params: dict):
     return scene.replace(**sections)
 
 
-def adhesion_speed(radius, density, K, f0):
+def adhesion_speed(radius, density, K, f0, w=None, law="brach_dunn"):
     """``v_a = sqrt(2 |V_min| / m)`` (m/s): the speed whose kinetic energy fills the adhesive
     well of the normal potential ``V(n) = (2/5) K sqrt(r) n^2.5 - (4/3) pi f0 sqrt(r) n^1.5``
-    (minimum at ``n = 2 pi f0 / K``). 0 without adhesion."""
-    xp = jnp if any(isinstance(x, jax.Array) for x in (radius, density, K, f0)) else np
-    n_e = 2.0 * math.pi * f0 / K
-    depth = (8.0 / 15.0) * math.pi * f0 * xp.sqrt(radius) * n_e**1.5
+    (minimum at ``n = 2 pi f0 / K``). 0 without adhesion. The other normal laws take the work
+    of adhesion ``w``: DMT's well ``(3/5) 2 pi w r n_e`` (``n_e = (2 pi w sqrt(r) /
+    K)^(2/3)``), JKR's snap-off loss ``c_W (w^5 r^4 / E^2)^(1/3)`` (``E = 3 K / 4``)."""
+    xp = jnp if any(isinstance(x, jax.Array) for x in (radius, density, K, f0, w)) else np
     mass = density * 4.0 / 3.0 * math.pi * radius**3
+    if law == "dmt":
+        n_e = (2.0 * math.pi * w * xp.sqrt(radius) / K) ** (2.0 / 3.0)
+        depth = 0.6 * 2.0 * math.pi * w * radius * n_e
+    elif law == "jkr":
+        from ..reference.jkr import C_W
+
+        depth = C_W * (w**5 * radius**4 / (0.75 * K) ** 2) ** (1.0 / 3.0)
+    else:
+        n_e = 2.0 * math.pi * f0 / K
+        depth = (8.0 / 15.0) * math.pi * f0 * xp.sqrt(radius) * n_e**1.5
     return xp.sqrt(2.0 * depth / mass)
 
 
@@ -267,7 +277,8 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> 
     speed = np.zeros(size)
     status = np.full(size, CaptureStatus.NO_ADHESION)
     lo_out, hi_out, again = np.zeros(size), np.zeros(size), np.full(size, np.inf)
-    lanes = np.flatnonzero(params["f0"] > 0) if adhesive else np.array([], int)
+    strength = params["f0"] if scene.model.normal == "brach_dunn" else params["w"]
+    lanes = np.flatnonzero(strength > 0) if adhesive else np.array([], int)
     evaluations = 0
     if lanes.size:
         sub = {k: v[lanes] for k, v in params.items()}
@@ -287,12 +298,16 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> 
     }
 
 
-def scan_speeds(params: dict, speed_range=None, points: int = SCAN_POINTS) -> np.ndarray:
+def scan_speeds(
+    params: dict, speed_range=None, points: int = SCAN_POINTS, law: str = "brach_dunn"
+) -> np.ndarray:
     """The scanned speeds, ``(lanes, points)`` m/s (module docstring)."""
     if speed_range is not None:
         grid = np.geomspace(speed_range[0], speed_range[1], points)
         return np.broadcast_to(grid, (np.size(params["f0"]), points)).copy()
-    v_a = adhesion_speed(params["radius"], params["density"], params["K"], params["f0"])
+    v_a = adhesion_speed(
+        params["radius"], params["density"], params["K"], params["f0"], params.get("w"), law
+    )
     grid = np.asarray(v_a)[:, None] * np.geomspace(*SCAN_RANGE, points)
     return np.minimum(grid, SPEED_MAX)
 
@@ -310,7 +325,7 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
         q = np.where(st == 0, np.asarray(res.vn_out) ** 2, np.nan)
         return st, q
 
-    grid = scan_speeds(params, speed_range)
+    grid = scan_speeds(params, speed_range, law=scene.model.normal)
     points = grid.shape[1]
     st_scan = np.empty((n, points), int)
     g_scan = np.empty((n, points))

@@ -408,6 +408,10 @@ def _grid_axes(scene, radius, angle_deg, omega0, speed_ratio):
     """The scene's scalar parameters and the checked axes of the table: ``(base, radius,
     angle, omega, x, adhesive)``; ``x`` is the speed over the capture speed (node 1 first)
     for an adhesive scene, the speed in m/s otherwise."""
+    if scene.target is not None:
+        raise SceneError(
+            "wall_law tabulates impacts on a wall; the scene has a [target] sphere (remove it)"
+        )
     params = scene_parameters(scene)
     for k, v in params.items():
         if np.ndim(v) != 0:
@@ -424,7 +428,8 @@ def _grid_axes(scene, radius, angle_deg, omega0, speed_ratio):
         unit="deg",
     )
     omega = _check_axis("omega0 (--spin)", omega0, -1e9, 1e9, unit="rad/s")
-    adhesive = bool(scene.model.adhesion) and base["f0"] > 0
+    strength = base["f0"] if scene.model.normal == "brach_dunn" else base["w"]
+    adhesive = bool(scene.model.adhesion) and strength > 0
     if adhesive:
         x = _check_axis(
             "speed_ratio (--speed)",
