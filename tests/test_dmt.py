@@ -79,6 +79,7 @@ def test_elastic_impact_conserves_energy_and_reaches_the_closed_form_overlap():
         assert got == pytest.approx(want, rel=1e-7), v
 
 
+@pytest.mark.slow  # two programs (JKR's w = 0 runs by default)
 def test_zero_work_of_adhesion_is_the_hertz_law():
     """``w = 0`` compiles no adhesion, and gives the Brach-Dunn law without adhesion exactly."""
     dmt = dmt_scene(w=0.0)
@@ -92,8 +93,8 @@ def test_zero_work_of_adhesion_is_the_hertz_law():
 # Rebounds and captures on both sides of the capture speed, oblique and spinning.
 CASES = [
     (5.0, 0.22, "analytical"),
-    (0.5, 2.0, "none"),
-    (50.0, 0.5, "lambda"),
+    pytest.param(0.5, 2.0, "none", marks=pytest.mark.slow),
+    pytest.param(50.0, 0.5, "lambda", marks=pytest.mark.slow),
 ]
 
 
@@ -118,6 +119,7 @@ def test_impacts_match_the_exact_reference(w, C_H, moments):
     assert np.all(np.asarray(res.loss_adhesion_damping) == 0.0)  # no ring, no its damping
 
 
+@pytest.mark.slow  # a Jacobian program (JKR's runs by default)
 def test_derivatives_match_central_differences_of_the_reference():
     """``d/dw``, ``d/dC_H`` and the impact's inputs of a spinning oblique rebound, from
     ``output_jacobian``, against the reference's Richardson-checked central differences."""
@@ -139,12 +141,13 @@ def test_batch_does_not_change_a_lane():
             assert a == b or (np.isnan(a) and np.isnan(b)), (k, i)
 
 
+@pytest.mark.slow  # reverse and forward programs
 def test_jax_grad_in_w_through_simulate():
     """``jax.grad`` of a rebound's ``cor_n`` in ``w`` is finite and agrees with ``jax.jacfwd``."""
 
     def cor(w):
         scene = dmt_scene(w=w)
-        return ji.simulate(scene, 0.3, 20.0, 0.0).cor_n
+        return ji.simulate(scene, 0.3, 20.0, 0.0, program="compact").cor_n
 
     g = jax.grad(cor)(2.0)
     f = jax.jacfwd(cor)(2.0)
@@ -233,6 +236,7 @@ def test_compare_prior_for_another_models_parameter(capsys):
     assert code == 2 and "--prior w" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a Mindlin program
 def test_dmt_with_the_mindlin_spring_matches_the_reference():
     """The DMT law with the Mindlin tangential spring against the reference's Mindlin model:
     within 1e-5 of the speed at the default settings (measured 1.3e-6; the Mindlin scene's

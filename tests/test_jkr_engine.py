@@ -108,9 +108,9 @@ def test_elastic_impacts_follow_the_closed_form_restitution():
 
 # Damped, oblique, spinning impacts: analytical (Hertzian) and lambda rolling moments.
 CASES = [
-    dict(w=0.1, C_H=0.2, moments="analytical"),
+    pytest.param(dict(w=0.1, C_H=0.2, moments="analytical"), marks=pytest.mark.slow),
     dict(w=1.0, C_H=0.5, moments="none"),
-    dict(w=0.3, C_H=1.0, moments="lambda", lam=1e-10),
+    pytest.param(dict(w=0.3, C_H=1.0, moments="lambda", lam=1e-10), marks=pytest.mark.slow),
 ]
 
 
@@ -185,6 +185,7 @@ def test_float32_runs_and_agrees_to_its_precision():
     assert np.max(err[rebound]) < 1e-3
 
 
+@pytest.mark.slow  # two Jacobian programs
 def test_derivatives_are_batch_exact():
     """A lane's derivatives in ``w`` and ``C_H`` are bitwise the same alone and in a batch."""
     scene = jkr_scene(w=0.3)
@@ -192,8 +193,10 @@ def test_derivatives_are_batch_exact():
     angles = np.array([40.0, -20.0, 60.0])
     omega0 = np.array([2e4, -1e4, 0.0])
     inputs = ("w", "C_H")
-    batch = ji.output_jacobian(scene, speeds, angles, omega0, inputs=inputs)
-    alone = ji.output_jacobian(scene, speeds[1:2], angles[1:2], omega0[1:2], inputs=inputs)
+    batch = ji.output_jacobian(scene, speeds, angles, omega0, inputs=inputs, program="compact")
+    alone = ji.output_jacobian(
+        scene, speeds[1:2], angles[1:2], omega0[1:2], inputs=inputs, program="compact"
+    )
     for k in ("cor_n", "vt_out", "omega_out"):
         np.testing.assert_array_equal(np.asarray(alone[k])[0], np.asarray(batch[k])[1], k)
 

@@ -26,13 +26,14 @@ def with_target(scene, radius, density, omega0=0.0):
 ARGS = (np.array([0.1, 1.0, 3.0]), np.array([0.0, 30.0, -60.0]), np.array([0.0, 1e4, 3e4]))
 
 
+@pytest.mark.slow  # two programs
 def test_a_huge_second_sphere_is_the_wall():
     """``r2 = 1e9 m`` (and a huge density): the wall's results to 1e-8 of the speed (the
     reduced radius differs from the wall's in the 14th digit, which changes the adaptive
     steps: measured 2.2e-9 in the spin of a 3 m/s, -60 deg impact)."""
     wall = ji.table1_scene()
     far = with_target(wall, 1e9, 1e25)
-    a, b = ji.simulate(wall, *ARGS), ji.simulate(far, *ARGS)
+    a, b = ji.simulate(wall, *ARGS, program="compact"), ji.simulate(far, *ARGS, program="compact")
     speed = ARGS[0]
     for k, scale in (("vn_out", speed), ("vt_out", speed), ("omega_out", speed / R)):
         err = np.abs(np.asarray(getattr(a, k)) - np.asarray(getattr(b, k))) / scale
@@ -40,6 +41,7 @@ def test_a_huge_second_sphere_is_the_wall():
     np.testing.assert_allclose(np.asarray(a.contact_time), np.asarray(b.contact_time), rtol=1e-8)
 
 
+@pytest.mark.slow  # six programs
 def test_two_equal_spheres_head_on_are_a_half_radius_sphere_on_the_wall():
     """Normal impact of two equal spheres (r, rho): the relative motion is the wall impact of
     a sphere of radius r/2 and the same reduced mass m/2 (density 4 rho), whatever the law
@@ -51,7 +53,8 @@ def test_two_equal_spheres_head_on_are_a_half_radius_sphere_on_the_wall():
         pair = with_target(scene, R, 8000.0)
         half = scene.replace(particle={"radius": R / 2, "density": 4 * 8000.0})
         speeds = np.array([0.05, 0.3, 2.0])
-        a, b = ji.simulate(pair, speeds, 0.0, 0.0), ji.simulate(half, speeds, 0.0, 0.0)
+        a = ji.simulate(pair, speeds, 0.0, 0.0, program="compact")
+        b = ji.simulate(half, speeds, 0.0, 0.0, program="compact")
         np.testing.assert_array_equal(np.asarray(a.status), np.asarray(b.status))
         for k, rtol in (("cor_n", 1e-8), ("contact_time", 1e-7), ("max_overlap", 1e-7)):
             np.testing.assert_allclose(
@@ -78,6 +81,7 @@ def test_oblique_spinning_impacts_match_the_reference(r2, rho2, omega2):
         assert float(res.energy_in[i]) == pytest.approx(q.energy_in, rel=1e-12)
 
 
+@pytest.mark.slow  # a Jacobian program
 def test_derivatives_with_a_second_sphere_match_the_reference():
     """``d/dC_H``, friction, speed, angle and the target's radius, density and spin of a
     spinning oblique rebound on a second sphere against the reference's central

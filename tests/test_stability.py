@@ -155,12 +155,20 @@ def _pair(radius2, density2, omega2):
 # their extremes; all measured within 1e-7 of the reference (2026-11-27).
 LAW_AND_PAIR_EXTREMES = [
     (lambda: _law("jkr", 0.5e-6, 1.0), 10.0, 40.0, 1e7),  # 1 um, sticky, fast spin
-    (lambda: _law("jkr", 0.5e-6, 1.0), 100.0, 30.0, 0.0),  # overlaps 1e7 snap-off scales
-    (lambda: _law("jkr", 35e-6, 1e-4), 0.01, 85.0, 0.0),  # weak adhesion, grazing
+    pytest.param(  # overlaps 1e7 snap-off scales
+        lambda: _law("jkr", 0.5e-6, 1.0), 100.0, 30.0, 0.0, marks=pytest.mark.slow
+    ),
+    pytest.param(  # weak adhesion, grazing
+        lambda: _law("jkr", 35e-6, 1e-4), 0.01, 85.0, 0.0, marks=pytest.mark.slow
+    ),
     (lambda: _law("dmt", 0.5e-6, 100.0), 10.0, 40.0, 1e7),
     (lambda: _pair(35e-9, 8000.0, 0.0), 1.66, 40.0, 1e4),  # a target 1000x smaller
-    (lambda: _pair(35e-6, 1.0, W_PAPER * 100), 1.66, 40.0, 0.0),  # light, spinning 1e8 deg/s
-    (lambda: _pair(35e-6, 1e5, -1e6), 0.05, 60.0, 1e6),  # heavy, counter-spinning
+    pytest.param(  # light, spinning 1e8 deg/s
+        lambda: _pair(35e-6, 1.0, W_PAPER * 100), 1.66, 40.0, 0.0, marks=pytest.mark.slow
+    ),
+    pytest.param(  # heavy, counter-spinning
+        lambda: _pair(35e-6, 1e5, -1e6), 0.05, 60.0, 1e6, marks=pytest.mark.slow
+    ),
 ]
 
 
