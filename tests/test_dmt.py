@@ -246,3 +246,11 @@ def test_dmt_with_the_mindlin_spring_matches_the_reference():
     speeds = np.geomspace(0.05, 5.0, 6)
     angles, omega0 = random_impacts(2, speeds, R)
     check_impacts(scene, p, speeds, angles, omega0, tol=1e-5)
+
+
+def test_with_normal_law_refuses_jkr_with_the_mindlin_spring():
+    with pytest.raises(ji.SceneError, match='"jkr" does not combine with model.tangential'):
+        ji.load_scene("kharaz2001_mindlin").with_normal_law("jkr")
+    assert ji.load_scene("kharaz2001_mindlin").with_normal_law("dmt").model.tangential == (
+        "mindlin"
+    )

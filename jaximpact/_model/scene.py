@@ -438,10 +438,12 @@ class Scene(eqx.Module):
         else:
             w = c.w
             f0 = (c.w**2 * c.K * r / (2 * jnp.pi)) ** (1 / 3) if law == "brach_dunn" else 0.0
-        tangential = "rigid" if law == "jkr" else self.model.tangential
+        if law == "jkr" and self.model.tangential == "mindlin":
+            raise SceneError(
+                'model.normal = "jkr" does not combine with model.tangential = "mindlin" yet'
+            )
         return self.replace(
-            contact={"f0": f0, "w": w if law != "brach_dunn" else 0.0},
-            model={"normal": law, "tangential": tangential},
+            contact={"f0": f0, "w": w if law != "brach_dunn" else 0.0}, model={"normal": law}
         )
 
     def replace(self, **sections):
