@@ -201,6 +201,7 @@ def test_derivatives_are_batch_exact():
         np.testing.assert_array_equal(np.asarray(alone[k])[0], np.asarray(batch[k])[1], k)
 
 
+@pytest.mark.slow  # the capture-speed search's programs
 def test_capture_speed_function_with_the_jkr_law():
     """``jaximpact.capture_speed`` scans from the JKR sticking speed and finds the reference's
     capture speed (bisection) to 1e-6 (measured 3e-9), normal and oblique."""
