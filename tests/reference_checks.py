@@ -1,5 +1,5 @@
-"""Checks of the engine against the exact reference, shared by the tests of the contact laws
-and of sphere-sphere impacts."""
+"""Checks shared by the tests of the contact laws and of sphere-sphere impacts: the engine
+against the exact reference, and a batch against its lanes alone."""
 
 import math
 
@@ -65,3 +65,14 @@ def check_derivatives(scene, params, speed, angle, omega0, inputs, tol=1e-4):
             assert err[out][name] * x[name] / s_out < 0.1 * tol, (out, name)
             got = float(jac[out][0, j]) * x[name] / s_out
             assert got == pytest.approx(want, abs=tol), (out, name)
+
+
+def check_batch_exact(scene, speeds, angles, omega0, lanes=(0, 2), keys=("cor_n", "vt_out",
+                      "omega_out", "contact_time")):  # fmt: skip
+    """Each of ``lanes`` gives bitwise the same ``keys`` alone as inside the batch."""
+    batch = ji.simulate(scene, speeds, angles, omega0)
+    for i in lanes:
+        alone = ji.simulate(scene, speeds[i : i + 1], angles[i : i + 1], omega0[i : i + 1])
+        for k in keys:
+            a, b = np.asarray(getattr(alone, k))[0], np.asarray(getattr(batch, k))[i]
+            assert a == b or (np.isnan(a) and np.isnan(b)), (k, i)

@@ -230,8 +230,7 @@ JKR_STUCK_TIME = 1e-10
 
 def _jkr_stuck(terms: dyn.Terms, p: ScaledParameters):
     """Captured at first touch: the JKR barrier ``V(n_c)`` exceeds the normal energy ``1/2``."""
-    _, a_c = dyn.jkr_snap_off(p)
-    return laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion) > 0.5
+    return dyn.jkr_barrier(p) > 0.5
 
 
 def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
@@ -244,7 +243,7 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
     n_sep = dyn.separation(terms, p)
     n_c, a_c = dyn.jkr_snap_off(p)
     a_sep = dyn.jkr_contact_radius(terms, p, jnp.full_like(ndot, n_sep))
-    barrier = laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion)
+    barrier = dyn.jkr_barrier(p)
     climb = barrier - laws.jkr_potential(a_sep, p.radius, p.K, p.w_adhesion)
     width = n_sep - n_c
     speed = jnp.abs(ndot)

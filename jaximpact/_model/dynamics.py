@@ -162,6 +162,13 @@ def jkr_snap_off(p: ScaledParameters):
     return laws.JKR_SNAP_OFF * mu, lam * math.pi ** (1.0 / 3.0) / 2.0
 
 
+def jkr_barrier(p: ScaledParameters):
+    """``V(n_c)``: the JKR potential at the snap-off, the energy a sphere in contact must have
+    to leave and the elastic impact's loss."""
+    _, a_c = jkr_snap_off(p)
+    return laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion)
+
+
 def separation(terms: Terms, p: ScaledParameters):
     """The overlap at which the integration stops for a separation: the contact floor, or
     with JKR the floor above the snap-off, ``mu (d_c + floor)``; a closed form crosses the
@@ -200,8 +207,7 @@ def capture_margin(terms: Terms, p: ScaledParameters, y):
     """
     kinetic = 0.5 * y["ndot"] ** 2
     if terms.jkr:  # the barrier V(n_c) a leaving sphere must still climb
-        _, a_c = jkr_snap_off(p)
-        barrier = laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion)
+        barrier = jkr_barrier(p)
         v = normal_potential(terms, p, y["n"])
         return (kinetic + v - barrier) / (kinetic + jnp.abs(v) + barrier)
     hertz = laws.hertz_potential(y["n"], p.radius, p.K)

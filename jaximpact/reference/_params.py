@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from .jkr import energy_loss, snap_off
+
 ROLLING_MOMENTS = ("none", "analytical", "lambda")
 
 
@@ -122,8 +124,6 @@ class Params:
         """Where the contact ends: 0, or the JKR snap-off overlap (< 0)."""
         if not self.jkr:
             return 0.0
-        from .jkr import snap_off
-
         return snap_off(self.reduced_radius, 0.75 * self.K, self.w)[1]
 
     @property
@@ -132,8 +132,6 @@ class Params:
         impact loses, which a sphere in contact must have to leave."""
         if not self.jkr:
             return 0.0
-        from .jkr import energy_loss
-
         return energy_loss(self.reduced_radius, 0.75 * self.K, self.w)
 
     @property
