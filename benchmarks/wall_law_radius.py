@@ -2,7 +2,8 @@
 
 Run: ``python benchmarks/wall_law_radius.py [--radius LO HI] [--points N] [--angles SPEC]``
 (Table 1 scene, default 1-100 um and the default angle grid: about 15-30 minutes on 2 cores).
-Prints the figures of BENCHMARKS.md's "Wall law across radius" and writes them to
+Runs as ``jaximpact wall-law`` does (``ji.use_all_cpu_cores()``: one XLA device per core, loop
+kernels). Prints the figures of BENCHMARKS.md's "Wall law across radius" and writes them to
 ``benchmarks/results/wall_law_radius.json``.
 
 1. ``wall_law(scene, radius=(LO, HI))``: radius nodes bisected until the capture speed at every
@@ -41,6 +42,8 @@ sys.path.insert(0, str(HERE))
 from _common import machine, measured_line, write_atomic  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
+
+ji.use_all_cpu_cores()  # as the command line does: one XLA device per core, loop kernels
 from jaximpact.wall_law import compare_with_simulate, random_points, wall_law  # noqa: E402
 from jaximpact.wall_law._capture import scene_with  # noqa: E402
 from jaximpact.wall_law._table import _cell  # noqa: E402

@@ -194,6 +194,10 @@ def test_program_cache_path_gives_the_jit_paths_bits(table1, tmp_path):
 
     speed, angle, omega0 = np.array([0.05, 1.3, 4.0]), np.array([0.0, 35.0, -60.0]), 3e3
     previous = jax.config.jax_compilation_cache_dir
+    # A test before this one in the process may hold this scene's program in the memo (it is
+    # then not written to this cache): start from an empty memo, put it back afterwards.
+    kept = _simulate._CACHED_PROGRAMS.copy()
+    _simulate._CACHED_PROGRAMS.clear()
     try:
         enable_compilation_cache(tmp_path)
         cached = ji.simulate(table1, speed, angle, omega0)
@@ -201,6 +205,8 @@ def test_program_cache_path_gives_the_jit_paths_bits(table1, tmp_path):
         jax.config.update("jax_compilation_cache_dir", None)
         plain = ji.simulate(table1, speed, angle, omega0)
     finally:
+        _simulate._CACHED_PROGRAMS.clear()
+        _simulate._CACHED_PROGRAMS.update(kept)
         if previous:
             enable_compilation_cache(previous)
         else:

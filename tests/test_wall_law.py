@@ -650,6 +650,73 @@ def test_c_header_matches_python_across_radius_and_above_the_top(wide_law, tmp_p
     assert {0, 1, 2, 3} <= set(np.unique(want[0]))
 
 
+@pytest.mark.slow  # a table of 60-80 radii x 150-200 angles (about a minute) and its checks
+def test_new_nodes_are_filled_only_where_the_rows_interpolate_within_the_tolerance(scene):
+    """The refinement passes simulate a new (radius, angle) cell only where its own rows bend
+    (or an end of its interval is not a plain rebounding row); the other new cells take the
+    interpolation of their interval's ends. Each filled cell is checked against `simulate` at
+    its own speeds: within the refinement tolerance (the capture speed within its
+    tolerance), and the capture speeds searched near the interpolated ones equal
+    `capture_speed`'s full search."""
+    from jaximpact.wall_law import _table
+
+    tol = 1e-3
+    simulated = []
+    original = _table._Context.lanes
+
+    def recording(self, r, a, w, *args, **kwargs):
+        simulated.extend(zip(np.round(r, 15).tolist(), np.round(a, 12).tolist(), strict=True))
+        return original(self, r, a, w, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_table, "RADII_PER_BATCH", 1)
+        mp.setattr(_table, "MIN_BATCH_LANES", 1)
+        mp.setattr(_table._Context, "lanes", recording)
+        law = wall_law(
+            scene, radius=(12e-6, 60e-6), angle_deg=np.linspace(0.0, 80.0, 21),
+            omega0=(0.0,), speed_ratio=RATIOS, capture_tol=3e-3, refine_tol=tol,
+        )  # fmt: skip
+    new_cells = law.radius_report["new_cells"]
+    pytest.importorskip("xarray")
+    from jaximpact.wall_law._io import to_xarray
+
+    said = to_xarray(law).attrs["refined_cells"]  # the NetCDF file says what was filled
+    assert said.count("cells simulated") == len(new_cells), said
+    done = set(simulated)
+    R, A = law.radius.size, law.angle_deg.size
+    ri, ai = np.meshgrid(np.arange(R), np.arange(A), indexing="ij")
+    keys = zip(
+        np.round(law.radius[ri.ravel()], 15), np.round(law.angle_deg[ai.ravel()], 12), strict=True
+    )
+    filled = ~np.array([k in done for k in keys]).reshape(R, A)
+    assert filled.sum() == sum(total - sim for sim, total in new_cells.values()) > 0
+    assert all(sim > 0 for sim, _ in new_cells.values())
+    i, j = np.nonzero(filled)
+    v_c = ji.capture_speed(lanes_of(scene, law.radius[i]), law.angle_deg[j], np.zeros(i.size))
+    np.testing.assert_allclose(law.capture_speed[i, j, 0], np.asarray(v_c.speed), rtol=3e-3)
+    # the results at the table's own speeds of those cells (not the capture node)
+    k = np.arange(1, RATIOS.size)
+    r = np.repeat(law.radius[i], k.size)
+    a = np.repeat(law.angle_deg[j], k.size)
+    speed = law.speed[i, j, 0][:, k].ravel()
+    res = ji.simulate(lanes_of(scene, r), speed, a, np.zeros(r.size))
+    assert np.all(np.asarray(res.status) == 0)
+    got = law.cor_n[i, j, 0][:, k].ravel()
+    assert np.max(np.abs(got - np.asarray(res.cor_n))) < tol
+    got = law.spin_ratio[i, j, 0][:, k].ravel()
+    assert np.max(np.abs(got - np.asarray(res.omega_out) * r / speed)) < tol
+    # the simulated cells between two nodes of one threshold searched near the guess: the
+    # same capture speed as the full search
+    sim_i, sim_j = np.nonzero(~filled)
+    pick = np.linspace(0, sim_i.size - 1, 40).astype(int)
+    full = ji.capture_speed(
+        lanes_of(scene, law.radius[sim_i[pick]]), law.angle_deg[sim_j[pick]], np.zeros(pick.size)
+    )
+    np.testing.assert_allclose(
+        law.capture_speed[sim_i[pick], sim_j[pick], 0], np.asarray(full.speed), rtol=1e-8
+    )
+
+
 @pytest.mark.slow  # a two-decade radius table (minutes) and 600 impacts
 def test_two_decade_radius_table_against_simulate(scene):
     """1-100 um (Table 1 sticks at every speed below about 9.5 um): off-grid radii and speeds

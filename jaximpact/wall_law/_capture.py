@@ -312,8 +312,9 @@ def scan_speeds(
     return np.minimum(grid, SPEED_MAX)
 
 
-def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
-    """Scan, rule and root find (module docstring) for lanes with adhesion."""
+def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -> dict:
+    """Scan, rule and root find (module docstring) for lanes with adhesion; ``grid``: the
+    speeds to scan, ``(lanes, points)``, instead of :func:`scan_speeds`'."""
     n = angle.size
     lanes_scene = scene_with(scene, params)
 
@@ -325,7 +326,8 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range) -> dict:
         q = np.where(st == 0, np.asarray(res.vn_out) ** 2, np.nan)
         return st, q
 
-    grid = scan_speeds(params, speed_range, law=scene.model.normal)
+    if grid is None:
+        grid = scan_speeds(params, speed_range, law=scene.model.normal)
     points = grid.shape[1]
     st_scan = np.empty((n, points), int)
     g_scan = np.empty((n, points))

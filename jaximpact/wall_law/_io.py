@@ -8,7 +8,7 @@ import numpy as np
 
 from .._model.scene import SceneError
 from ._capture import CaptureStatus
-from ._table import WallLaw
+from ._table import FILL_SHARE, WallLaw
 
 __all__ = ["read_draws", "to_xarray", "write_netcdf", "write_parquet", "NETCDF", "PARQUET"]
 
@@ -133,6 +133,12 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
                 for lo, hi, miss in report["unresolved"]
             )
             or "none"
+        )
+    if report.get("new_cells"):
+        attrs["refined_cells"] = "; ".join(
+            f"{stage}: {sim} of {total} new (radius, angle) cells simulated, the others "
+            f"interpolated (estimated miss below {FILL_SHARE:g} x refine_tol)"
+            for stage, (sim, total) in report["new_cells"].items()
         )
     attrs["capture_speeds_not_converged"] = int(report.get("not_converged", 0))
     attrs.update({f"scene.{k}": v for k, v in law.scene.items()})

@@ -26,6 +26,12 @@ interpolated capture speed rises to infinity instead of jumping. Radius nodes ar
 (bisection in ``log r``) until the capture speed at every interval's midpoint is within
 ``capture_tol`` of its interpolation.
 
+Refinement: radius and angle intervals are split where linear interpolation of the results
+would miss by more than ``refine_tol`` (an estimate from second differences). The table is a
+tensor product (the generated C code reads one), so a new node gets a cell at every radius
+(or angle); a cell is simulated only where its own rows need the node, and elsewhere holds
+the interpolation of its interval's ends, which is what the table gives there without it.
+
 Each (radius, angle, spin) row is valid up to ``top_ratio``: the largest speed ratio of the row
 within the speed range (1000 m/s) below any speed at which the sphere sticks again. A query
 above it is flagged as clamped and answered as captured where the rows stick again there
@@ -48,7 +54,7 @@ import numpy as np
 
 from .._engine.simulate import PARAMETERS, scene_parameters
 from .._model.scene import SceneError
-from ._capture import CaptureStatus, capture_speed, scene_with
+from ._capture import RTOL, CaptureStatus, _root, capture_speed, scene_with
 
 __all__ = [
     "DEFAULT_ANGLES",
@@ -78,6 +84,14 @@ RADIUS_MIN_STEP = 1e-3
 #: most of its time in the calls' overhead: 18 angles x 8 radii ran 2,900 impacts/s).
 RADII_PER_BATCH = 8
 MIN_BATCH_LANES = 2048
+#: A new node between two nodes of one capture threshold: its capture speed is searched from
+#: the interpolated one, scanning these multiples of it (a bracket of 2 %) instead of six
+#: decades (:func:`_Context._capture_near`).
+NEAR_SCAN = np.array([0.98, 0.998, 1.002, 1.02])
+#: A new node's cell is filled by interpolation (not simulated) only where its rows' estimated
+#: miss is below this share of the tolerance: the second-difference estimate was seen 1.5x
+#: below the true miss of a filled cell (spin, 1.53e-3 at a tolerance of 1e-3).
+FILL_SHARE = 0.5
 
 
 class WallLawError(RuntimeError):
@@ -392,7 +406,12 @@ def wall_law(
     if refine and angle.size >= 3:
         rows, angle = _refined(ctx, rows, angle, refine_tol, say)
     law = _assembled(scene, rows, radius, angle, omega, x, adhesive)
-    law.radius_report = {**report, "not_converged": ctx.not_converged, "refine_tol": refine_tol}
+    law.radius_report = {
+        **report,
+        "not_converged": ctx.not_converged,
+        "refine_tol": refine_tol,
+        "new_cells": ctx.new_cells,
+    }
     if not refine:
         law.radius_report["refine_tol"] = None
     impacts = ctx.impacts
@@ -457,16 +476,126 @@ def _grid_axes(scene, radius, angle_deg, omega0, speed_ratio):
 def _refined(ctx, rows, angle, tol, say):
     """Split the angle intervals where linear interpolation would miss by more than ``tol``
     (kinks: the onset of rolling), in batches of pass 1's lane count (one compiled program);
-    the rows and angles merged and sorted by angle."""
-    extra = _refinement(rows, angle, tol=tol)
+    the rows and angles merged and sorted by angle. The new angles are simulated only at the
+    radii whose own rows need them (:func:`_new_nodes`)."""
+    miss = _refinement(rows, angle)  # (R, A - 1)
+    extra, owner = _split(angle, miss.max(axis=0), tol, most=8)
     if not extra.size:
         return rows, angle
+    R = miss.shape[0]
+    need = miss[:, owner] > FILL_SHARE * tol  # (R, E)
     say(f"refining: {extra.size} more angles where the table bends sharply")
-    more = ctx.angles(extra, batch=ctx.batch, stage="pass 2 (refined angles)")
-    rows = {k: np.concatenate([rows[k], more[k]], axis=1) for k in rows}
+    t = (extra - angle[owner]) / (angle[owner + 1] - angle[owner])
+    more = _new_nodes(
+        ctx, rows, 1, owner, t, need, ctx.radius, angle, extra, "pass 2 (refined angles)"
+    )
+    rows = {k: np.concatenate([_grid(rows[k], R, ctx), more[k]], axis=1) for k in rows}
     angle = np.concatenate([angle, extra])
     order = np.argsort(angle)
-    return {k: v[:, order] for k, v in rows.items()}, angle[order]
+    return {k: _flat_rows(v[:, order]) for k, v in rows.items()}, angle[order]
+
+
+def _grid(values, R, ctx):
+    """Rows ``(R, A*W[, X])`` as ``(R, A, W[, X])``."""
+    W = ctx.omega.size
+    return values.reshape((R, -1, W) + values.shape[2:])
+
+
+def _flat_rows(values):
+    """Rows ``(R, A, W[, X])`` as ``(R, A*W[, X])``."""
+    return values.reshape((values.shape[0], -1) + values.shape[3:])
+
+
+def _clean(rows, R, ctx) -> np.ndarray:
+    """``(R, A)``: (radius, angle) cells whose rows (every spin) rebound at every simulated
+    speed up to the last node with one capture status: the cells between two such cells can
+    take their linear interpolation (:func:`_new_nodes`)."""
+    ok = np.isfinite(rows["v_ref"]) & (rows["again"] == 0)
+    ok &= rows["top"] >= ctx.x[-1]
+    ok &= (rows["status"] == 0).all(axis=-1)
+    status = rows["c_status"]
+    ok &= np.isin(status, (CaptureStatus.THRESHOLD, CaptureStatus.NO_ADHESION))
+    return _grid(ok, R, ctx).all(axis=2)
+
+
+def _new_nodes(ctx, rows, axis, owner, t, need, radius, angle, extra, stage) -> dict:
+    """Rows at new nodes along ``axis`` (0: radius, at ``log r``; 1: angle) that split the
+    intervals ``owner`` at fractions ``t``: ``(E, A, W[, X])`` or ``(R, E, W[, X])``.
+
+    A (node, other axis) cell is simulated where ``need`` says its own rows bend (their
+    estimated miss above :data:`FILL_SHARE` of the tolerance) or where either end of its
+    interval is not :func:`_clean`; elsewhere it is the linear interpolation of the
+    interval's ends: the value the table interpolates there without the node, so filling it
+    changes nothing where the rows did not need it, and a tensor-product table still holds
+    it (the generated C code reads tensor products). Capture speeds of simulated cells
+    between clean ends are searched near the interpolated ones (:meth:`_Context.lanes`'s
+    ``guess``).
+    """
+    R, W = radius.size, ctx.omega.size
+    clean = _clean(rows, R, ctx)
+    grid = {k: _grid(v, R, ctx) for k, v in rows.items()}
+    if axis == 0:
+        ends_clean = clean[owner] & clean[owner + 1]  # (E, A)
+        lo = {k: v[owner] for k, v in grid.items()}
+        hi = {k: v[owner + 1] for k, v in grid.items()}
+        cos_lo = cos_hi = cos_new = np.cos(np.radians(angle))[None, :, None]
+        tt = t[:, None, None]
+    else:
+        ends_clean = clean[:, owner] & clean[:, owner + 1]  # (R, E)
+        lo = {k: v[:, owner] for k, v in grid.items()}
+        hi = {k: v[:, owner + 1] for k, v in grid.items()}
+        cos_lo = np.cos(np.radians(angle[owner]))[None, :, None]
+        cos_hi = np.cos(np.radians(angle[owner + 1]))[None, :, None]
+        cos_new = np.cos(np.radians(extra))[None, :, None]
+        tt = t[None, :, None]
+    simulated = need | ~ends_clean
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = _interpolated(ctx, lo, hi, tt, cos_lo, cos_hi, cos_new)
+    # (new node, angle) or (radius, new node); those between clean ends first: their
+    # capture speeds are searched near the interpolated ones (one kind of search per batch)
+    cells = np.argwhere(simulated)
+    guessed = ends_clean[cells[:, 0], cells[:, 1]] & ctx.adhesive
+    order = np.argsort(~guessed, kind="stable")
+    cells, guessed = cells[order], guessed[order]
+    ctx.new_cells[stage.split(" (")[0]] = (int(cells.shape[0]), int(simulated.size))
+    ctx.say(
+        f"{stage}: simulating {cells.shape[0]} of {simulated.size} new (radius, angle) "
+        f"cells (the others: their rows' interpolation is within the tolerance)"
+    )
+    if cells.size:
+        if axis == 0:
+            r_cell, a_cell = np.exp(extra)[cells[:, 0]], angle[cells[:, 1]]
+        else:
+            r_cell, a_cell = radius[cells[:, 0]], extra[cells[:, 1]]
+        r = np.repeat(r_cell, W)
+        a = np.repeat(a_cell, W)
+        w = np.tile(ctx.omega, cells.shape[0])
+        guess = out["v_c"][cells[:, 0], cells[:, 1]].reshape(-1)
+        guess = np.where(np.repeat(guessed, W), guess, np.nan)
+        found = ctx.lanes(r, a, w, stage, guess=guess)
+        for k, v in found.items():
+            out[k][cells[:, 0], cells[:, 1]] = v.reshape((cells.shape[0], W) + v.shape[1:])
+    return out
+
+
+def _interpolated(ctx, lo, hi, t, cos_lo, cos_hi, cos_new) -> dict:
+    """The rows between clean ends ``lo`` and ``hi`` at fraction ``t`` as the table
+    interpolates them: the results linearly, the capture speed through ``g = (v_c
+    cos)^(-1/4)`` (module docstring)."""
+    out = {}
+    for name in OUTPUTS:
+        t4 = t[..., None]
+        out[name] = (1.0 - t4) * lo[name] + t4 * hi[name]
+    if ctx.adhesive:
+        g = (1.0 - t) * (lo["v_c"] * cos_lo) ** -0.25 + t * (hi["v_c"] * cos_hi) ** -0.25
+        v_c = g**-4 / cos_new
+        out["v_c"], out["v_ref"] = v_c, v_c.copy()
+    else:
+        out["v_c"], out["v_ref"] = lo["v_c"].copy(), lo["v_ref"].copy()
+    out["speed"] = out["v_ref"][..., None] * ctx.x
+    for name in ("c_status", "status", "top", "again"):
+        out[name] = lo[name].copy()
+    return out
 
 
 def _assembled(scene, rows, radius, angle, omega, x, adhesive) -> WallLaw:
@@ -526,6 +655,7 @@ class _Context:
         self.not_converged = 0  # capture speeds of table rows taken as the root find left them
         self.known = {}  # (radius, angle, spin) -> (capture speed, status) already found
         self.label = ""  # which pass and batch the progress lines are about
+        self.new_cells = {}  # pass -> (new cells simulated, new cells)
 
     def _flat(self, radius, angle):
         R, A, W = radius.size, angle.size, self.omega.size
@@ -541,12 +671,18 @@ class _Context:
         radius = self.radius if radius is None else np.asarray(radius, dtype=float)
         R, A, W = radius.size, angle.size, self.omega.size
         r, a, w = self._flat(radius, angle)
-        n = r.size
         if self.batch is None and radius.size > 1:
             self.lane_batch(A * W)
-        batch = batch or self.batch or n
         if self.batch is None:
-            self.batch = batch
+            self.batch = batch or r.size
+        rows = self.lanes(r, a, w, stage, batch)
+        return {k: v.reshape((R, A * W) + v.shape[1:]) for k, v in rows.items()}
+
+    def lanes(self, r, a, w, stage="", batch=None, guess=None) -> dict:
+        """Rows of the lanes ``(r, a, w)`` (flat), in batches of one lane count (padded);
+        ``guess``: their capture speeds as interpolated, to search near."""
+        n = r.size
+        batch = batch or self.batch or n
         parts = []
         batches = -(-n // batch)
         for lo in range(0, n, batch):
@@ -554,10 +690,10 @@ class _Context:
             self.label = f"{stage}{part}: " if stage else ""
             idx = np.arange(lo, min(lo + batch, n))
             pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
-            out = self._lanes(r[pad], a[pad], w[pad])
+            near = None if guess is None else guess[pad]
+            out = self._lanes(r[pad], a[pad], w[pad], near)
             parts.append({k: v[: idx.size] for k, v in out.items()})
-        rows = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        return {k: v.reshape((R, A * W) + v.shape[1:]) for k, v in rows.items()}
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
     def lane_batch(self, lanes_per_radius: int) -> int:
         """The lane count of every batch (one compiled program): whole radii of the first
@@ -582,22 +718,20 @@ class _Context:
             out.append(self._capture(r[pad], a[pad], w[pad], unsure_as_nan)[0][: idx.size])
         return np.concatenate(out).reshape(radius.size, angle.size, self.omega.size)
 
-    def _capture(self, r, a, w, unsure_as_nan=False):
+    def _capture(self, r, a, w, unsure_as_nan=False, guess=None):
         """Capture speeds and statuses of lanes (``inf`` where all captured; where the root
         find did not converge, its best estimate, counted in ``not_converged``, or NaN with
-        ``unsure_as_nan``)."""
+        ``unsure_as_nan``); ``guess``: interpolated capture speeds to search near."""
         n = r.size
         keys = list(zip(r.tolist(), a.tolist(), w.tolist(), strict=True))
         if all(k in self.known for k in keys):  # found by the radius pass already
             v_c = np.array([self.known[k][0] for k in keys])
             c_status = np.array([self.known[k][1] for k in keys])
         else:
-            params = {k: np.full(n, v) for k, v in self.base.items()}
-            params["radius"] = r
-            cap = capture_speed(scene_with(self.scene, params), a, w)
-            v_c = np.asarray(cap.speed, dtype=float)
-            c_status = np.asarray(cap.status)
-            self.impacts += cap.evaluations * n
+            if guess is not None and np.isfinite(guess).any():
+                v_c, c_status = self._capture_near(r, a, w, guess)
+            else:
+                v_c, c_status = self._capture_scan(r, a, w)
             found = zip(v_c.tolist(), c_status.tolist(), strict=True)
             self.known.update(zip(keys, found, strict=True))
         ok = (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE, CaptureStatus.ALL_CAPTURED)
@@ -616,7 +750,40 @@ class _Context:
         self.not_converged += int(unsure.sum())
         return v_c, c_status
 
-    def _lanes(self, r, a, w) -> dict:
+    def _capture_scan(self, r, a, w):
+        """:func:`capture_speed` of the lanes: its scan over six decades and root find."""
+        n = r.size
+        params = {k: np.full(n, v) for k, v in self.base.items()}
+        params["radius"] = r
+        cap = capture_speed(scene_with(self.scene, params), a, w)
+        self.impacts += cap.evaluations * n
+        return np.asarray(cap.speed, dtype=float), np.asarray(cap.status)
+
+    def _capture_near(self, r, a, w, guess):
+        """Capture speeds of lanes between nodes of one threshold, from the interpolated
+        ``guess``: the root find of :func:`capture_speed` on a scan of :data:`NEAR_SCAN`
+        times the guess (4 speeds instead of 19). A lane whose threshold is not inside
+        that bracket (or that has no guess: NaN) gets the full search, in a batch of the
+        same lane count. Searching near the guess does not look for thresholds far from it:
+        the status is that of the bracket (the neighbours had one threshold each)."""
+        from .._engine.api import simulate
+
+        n = r.size
+        params = {k: np.full(n, v) for k, v in self.base.items()}
+        params["radius"] = r
+        known = np.isfinite(guess) & (guess > 0)
+        near = np.where(known, guess, 1.0)[:, None] * NEAR_SCAN[None, :]
+        res = _root(simulate, self.scene, params, a, w, RTOL, None, grid=near)
+        self.impacts += res["evaluations"] * n
+        v_c, c_status = res["speed"], res["status"]
+        miss = np.flatnonzero(~known | (c_status != CaptureStatus.THRESHOLD))
+        if miss.size:
+            pad = np.concatenate([miss, np.full(n - miss.size, miss[-1])])
+            v_far, st_far = self._capture_scan(r[pad], a[pad], w[pad])
+            v_c[miss], c_status[miss] = v_far[: miss.size], st_far[: miss.size]
+        return v_c, c_status
+
+    def _lanes(self, r, a, w, guess=None) -> dict:
         n, x = r.size, self.x
         X = x.size
         params = {k: np.full(n, v) for k, v in self.base.items()}
@@ -624,7 +791,7 @@ class _Context:
         lane_scene = scene_with(self.scene, params)
         if self.adhesive:
             self.say(f"{self.label}capture speeds of {n} (radius, angle, spin) lanes")
-            v_c, c_status = self._capture(r, a, w)
+            v_c, c_status = self._capture(r, a, w, guess=guess)
             v_ref = v_c
         else:
             v_c = np.zeros(n)
@@ -756,42 +923,51 @@ def _g_miss(g_interp, g_true) -> float:
 
 def _refined_radii(ctx, rows, radius, angle, tol, say):
     """Split the radius intervals (``log r``) where linear interpolation of the results would
-    miss by more than ``tol`` (second differences, as for the angles; stick rows and their
-    neighbours left out); the rows and radii merged and sorted by radius."""
-    extra = _radius_refinement(rows, radius, angle, tol, 1 if ctx.adhesive else 0)
+    miss by more than ``tol`` (second differences, as for the angles; stick rows left out);
+    the rows and radii merged and sorted by radius. The new radii are
+    simulated only at the angles whose own rows need them (:func:`_new_nodes`)."""
+    miss, live = _radius_refinement(rows, radius, angle, 1 if ctx.adhesive else 0)
+    lr = np.log(radius)
+    extra, owner = _split(lr, miss.max(axis=1), tol, most=4)
     if not extra.size:
         return rows, radius
+    # (an interval next to a stick row has no estimate there: simulated)
+    need = (miss[owner] > FILL_SHARE * tol) | ~(live[owner] & live[owner + 1])
     say(f"refining: {extra.size} more radii where the results bend sharply")
-    more = ctx.angles(angle, batch=ctx.batch, stage="pass 1b (refined radii)", radius=extra)
-    rows = {k: np.concatenate([rows[k], more[k]], axis=0) for k in rows}
-    radius = np.concatenate([radius, extra])
+    t = (extra - lr[owner]) / (lr[owner + 1] - lr[owner])
+    more = _new_nodes(ctx, rows, 0, owner, t, need, radius, angle, extra, "pass 1b (refined radii)")
+    R = radius.size
+    rows = {k: np.concatenate([_grid(rows[k], R, ctx), more[k]], axis=0) for k in rows}
+    radius = np.concatenate([radius, np.exp(extra)])
     order = np.argsort(radius)
-    return {k: v[order] for k, v in rows.items()}, radius[order]
+    return {k: _flat_rows(v[order]) for k, v in rows.items()}, radius[order]
 
 
-def _radius_refinement(rows: dict, radius, angle, tol: float, first: int) -> np.ndarray:
-    """New radii splitting the intervals (in ``log r``) where linear interpolation of
-    ``cor_n``, ``cor_t`` or ``spin_ratio`` would miss by more than ``tol`` (see
-    :func:`_refinement`; ``first``: the first simulated speed node)."""
+def _radius_refinement(rows: dict, radius, angle, first: int):
+    """The miss of linear interpolation in ``log r`` of ``cor_n``, ``cor_t`` or
+    ``spin_ratio`` per (radius interval, angle), ``(R - 1, A)`` (see :func:`_refinement`;
+    ``first``: the first simulated speed node), and which (radius, angle) cells rebound
+    above their capture speed at every spin, ``(R, A)`` (stick rows are left out of the
+    estimate)."""
     R, A = radius.size, angle.size
-    live = np.isfinite(rows["v_ref"]).all(axis=1)  # radii with a rebound at every lane
+    live = np.isfinite(rows["v_ref"])  # (R, A*W): not a stick row
     X = rows["cor_n"].shape[-1]
-    # only simulated rebounds: not the capture node, not the nodes above a row's top, and no
-    # radius with a stick row
+    # only simulated rebounds: not the capture node, not the nodes above a row's top, not a
+    # stick row
     with np.errstate(invalid="ignore"):  # (stick rows: inf / inf; left out as not live)
         x = rows["speed"] / rows["v_ref"][..., None]
     held = (x > rows["top"][..., None] * (1 + 1e-12)) | (np.arange(X) < first)
-    held |= ~live[:, None, None]
+    held |= ~live[..., None]
     lr = np.log(radius)
-    miss = np.zeros(R - 1)
+    miss = np.zeros((R - 1, A))
     for f in _results(rows, angle, held):
-        miss = np.maximum(miss, _interval_miss(f.reshape(R, A, -1), lr, axis=0))
-    return np.exp(_split(lr, miss, tol, most=4))
+        miss = np.maximum(miss, _interval_miss(f.reshape(R, A, -1), lr, axis=0, by=1))
+    return miss, live.reshape(R, A, -1).all(axis=2)
 
 
-def _refinement(rows: dict, angle, tol: float) -> np.ndarray:
-    """New angles splitting the intervals where linear interpolation in angle would miss by
-    more than ``tol`` in ``cor_n``, ``cor_t`` or ``spin_ratio``.
+def _refinement(rows: dict, angle) -> np.ndarray:
+    """The miss of linear interpolation in angle of ``cor_n``, ``cor_t`` or ``spin_ratio``
+    per (radius, angle interval), ``(R, A - 1)``.
 
     The miss of an interval is estimated from the second differences at its two ends (a kink
     inside it gives ``|d2| ~ h * (jump of the slope)`` and a miss up to ``|d2| / 4``); an
@@ -799,10 +975,10 @@ def _refinement(rows: dict, angle, tol: float) -> np.ndarray:
     """
     A = angle.size
     R = rows["cor_n"].shape[0]
-    miss = np.zeros(A - 1)
+    miss = np.zeros((R, A - 1))
     for f in _results(rows, angle):
-        miss = np.maximum(miss, _interval_miss(f.reshape(R, A, -1), angle, axis=1))
-    return _split(angle, miss, tol, most=8)
+        miss = np.maximum(miss, _interval_miss(f.reshape(R, A, -1), angle, axis=1, by=0).T)
+    return miss
 
 
 def _results(rows: dict, angle, held=None):
@@ -818,29 +994,37 @@ def _results(rows: dict, angle, held=None):
         yield f
 
 
-def _interval_miss(f, nodes, axis: int) -> np.ndarray:
-    """Per interval of ``nodes`` (along ``axis`` of ``f``): half the largest second
-    difference at its two ends, each node's miss by its neighbours' line on the non-uniform
-    grid (NaN entries count as 0)."""
-    f = np.moveaxis(f, axis, 0)
+def _interval_miss(f, nodes, axis: int, by: int) -> np.ndarray:
+    """Per interval of ``nodes`` (along ``axis`` of ``f``) and index of axis ``by``: half the
+    largest second difference at the interval's two ends, each node's miss by its
+    neighbours' line on the non-uniform grid (NaN entries count as 0); ``(intervals,
+    f.shape[by])``."""
+    f = np.moveaxis(f, (axis, by), (0, 1))
     h = np.diff(nodes)
     h0, h1 = h[:-1], h[1:]
     shape = (-1,) + (1,) * (f.ndim - 1)
     w0 = (h1 / (h0 + h1)).reshape(shape)
     w1 = (h0 / (h0 + h1)).reshape(shape)
     d2 = np.abs(w0 * f[:-2] + w1 * f[2:] - f[1:-1])
-    d2 = np.max(np.nan_to_num(d2, nan=0.0).reshape(d2.shape[0], -1), axis=1)
-    node = np.concatenate([[0.0], d2, [0.0]])
+    d2 = np.max(np.nan_to_num(d2, nan=0.0).reshape(d2.shape[:2] + (-1,)), axis=2)
+    edge = np.zeros((1, f.shape[1]))
+    node = np.concatenate([edge, d2, edge])
     return np.maximum(node[:-1], node[1:]) / 2.0
 
 
-def _split(nodes, miss, tol: float, most: int) -> np.ndarray:
+def _split(nodes, miss, tol: float, most: int):
     """New nodes splitting each interval into ``ceil(miss / tol)`` equal parts (at most
-    ``most``)."""
+    ``most``), and the interval each lies in."""
     h = np.diff(nodes)
     parts = np.minimum(np.ceil(miss / tol), most).astype(int)
-    new = [nodes[j] + h[j] * np.arange(1, m) / m for j, m in enumerate(parts) if m > 1]
-    return np.concatenate(new) if new else np.array([])
+    new, owner = [], []
+    for j, m in enumerate(parts):
+        if m > 1:
+            new.append(nodes[j] + h[j] * np.arange(1, m) / m)
+            owner.append(np.full(m - 1, j))
+    if not new:
+        return np.array([]), np.array([], int)
+    return np.concatenate(new), np.concatenate(owner)
 
 
 def _uncertainty(simulate, scene, law, draws, max_draws, say) -> dict:

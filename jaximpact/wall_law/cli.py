@@ -171,6 +171,12 @@ def _report(law, scene, scene_name, check) -> None:
                     f"stick rows, or a capture speed not found), the widest {widest:.2%} of "
                     "the radius"
                 )
+        for stage, (sim, total) in report.get("new_cells", {}).items():
+            if total > sim:
+                print(
+                    f"{stage}: {total - sim} of {total} new (radius, angle) cells interpolated "
+                    "(their rows within the refinement tolerance), not simulated"
+                )
         if report.get("not_converged"):
             print(
                 f"warning: {report['not_converged']} capture speeds of table rows are the "
