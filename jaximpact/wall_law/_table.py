@@ -772,7 +772,7 @@ class _Context:
         params = {k: np.full(n, v) for k, v in self.base.items()}
         params["radius"] = r
         known = np.isfinite(guess) & (guess > 0)
-        near = np.where(known, guess, 1.0)[:, None] * NEAR_SCAN[None, :]
+        near = np.minimum(np.where(known, guess, 1.0)[:, None] * NEAR_SCAN[None, :], SPEED_MAX)
         res = _root(simulate, self.scene, params, a, w, RTOL, None, grid=near)
         self.impacts += res["evaluations"] * n
         v_c, c_status = res["speed"], res["status"]
