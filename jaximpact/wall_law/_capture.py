@@ -314,7 +314,7 @@ def scan_speeds(
 
 def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -> dict:
     """Scan, rule and root find (module docstring) for lanes with adhesion; ``grid``: the
-    speeds to scan, ``(lanes, points)``, instead of :func:`scan_speeds`'."""
+    speeds to scan, ``(lanes, points)``, instead of :func:`scan_speeds`."""
     n = angle.size
     lanes_scene = scene_with(scene, params)
 
