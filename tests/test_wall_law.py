@@ -761,14 +761,82 @@ def test_two_decade_radius_table_against_simulate(scene):
     assert errors["cor_t"] < 2e-3 and errors["spin_ratio"] < 2e-3, errors
 
 
+def _speed_midpoint_misses(law, scene):
+    """Per output, the largest miss of the table's rows (one radius, spin 0) at the
+    midpoints (in the speed coordinate) of their speed intervals, against `simulate` (four
+    lanes per call: the program of this file's tables)."""
+    x = law.speed_ratio
+    u = law.u_of(x)
+    mid_u = 0.5 * (u[:-1] + u[1:])
+    mid_x = 1.0 + np.sinh(mid_u) ** 2
+    angle = law.angle_deg
+    sin = np.sin(np.radians(angle))
+    miss = {"cor_n": 0.0, "cor_t": 0.0, "spin_ratio": 0.0}
+    for k in range(mid_x.size):
+        speed = law.capture_speed[0, :, 0] * mid_x[k]
+        res = ji.simulate(scene, speed, angle, np.zeros(angle.size))
+        assert np.all(np.asarray(res.status) == 0)
+        table = {n: 0.5 * (getattr(law, n)[0, :, 0, k] + getattr(law, n)[0, :, 0, k + 1])
+                 for n in ("cor_n", "vt_ratio", "spin_ratio")}  # fmt: skip
+        got = {
+            "cor_n": np.asarray(res.cor_n),
+            "cor_t": np.asarray(res.vt_out) / speed / sin,
+            "spin_ratio": np.asarray(res.omega_out) * law.radius[0] / speed,
+        }
+        table["cor_t"] = table.pop("vt_ratio") / sin
+        for n in miss:
+            miss[n] = max(miss[n], float(np.max(np.abs(table[n] - got[n]))))
+    return miss
+
+
+def test_speed_nodes_are_added_where_the_rows_bend(scene):
+    """The speed pass splits the speed intervals where a row's linear interpolation would miss
+    by more than `speed_tol` (the onset of rolling crosses the speed axis between 60 and 80
+    degrees): afterwards every row interpolates within it at every interval's midpoint,
+    where the given nodes alone missed by several times more; a new node's cell either
+    holds `simulate`'s results (its row needed it) or its interval's interpolation."""
+    tol = 1e-3
+    angles = (64.0, 70.0, 76.0, 82.0)  # four lanes: one compiled program, as above
+    ratios = 1.0 + np.sinh(np.linspace(0.0, np.arcsinh(np.sqrt(99.0)), 24)) ** 2
+    kwargs = dict(angle_deg=angles, omega0=(0.0,), speed_ratio=ratios, refine_tol=1.0)
+    law = wall_law(scene, speed_tol=tol, **kwargs)
+    plain = wall_law(scene, speed_tol=False, **kwargs)
+    np.testing.assert_array_equal(plain.speed_ratio, ratios)  # the given nodes (from 1)
+    assert np.all(np.isin(plain.speed_ratio, law.speed_ratio))
+    sim, total = law.radius_report["new_cells"]["pass 3"]
+    assert law.speed_ratio.size > plain.speed_ratio.size and 0 < sim <= total
+    assert total == len(angles) * (law.speed_ratio.size - plain.speed_ratio.size)
+    before = _speed_midpoint_misses(plain, scene)
+    after = _speed_midpoint_misses(law, scene)
+    assert max(before.values()) > 3 * tol, before
+    assert max(after.values()) < tol, after
+    # the given nodes' cells are unchanged by the pass (but the capture node's tangential
+    # results, extrapolated from the next two nodes); the new ones hold simulate's results
+    # or their interval's interpolation, within the tolerance either way
+    same = np.isin(law.speed_ratio, plain.speed_ratio)
+    for name in ("cor_n", "vt_ratio", "spin_ratio"):
+        got, want = getattr(law, name)[..., same], getattr(plain, name)
+        np.testing.assert_array_equal(got[..., 1:], want[..., 1:])
+    angle = np.asarray(angles)
+    for k in np.flatnonzero(~same):
+        speed = law.speed[0, :, 0, k]
+        res = ji.simulate(scene, speed, angle, np.zeros(angle.size))
+        np.testing.assert_allclose(law.cor_n[0, :, 0, k], np.asarray(res.cor_n), atol=tol)
+        spin = np.asarray(res.omega_out) * law.radius[0] / speed
+        np.testing.assert_allclose(law.spin_ratio[0, :, 0, k], spin, atol=tol)
+
+
 @pytest.mark.slow  # the default grid (about a minute) and 2,000 impacts
 def test_default_grid_accuracy(scene):
+    """The issue's targets on one radius: cor_n, cor_t and the spin (omega_out r / speed)
+    within 1e-3 of `simulate` at random points off the nodes."""
     law = wall_law(scene)
     c = compare_with_simulate(law, scene, random_points(law, 2000, seed=1))
     assert not c["failed"].any()
     assert np.all(c["status_agree"] | c["near_capture"])
     assert np.nanmax(c["error"]["cor_n"]) < 1e-3
     assert np.nanmax(c["error"]["cor_t"]) < 1e-3
+    assert np.nanmax(c["error"]["spin_ratio"]) < 1e-3
 
 
 def test_wall_law_extra_installs_what_the_command_checks_for():

@@ -124,6 +124,12 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
         else f"{report['refine_tol']:g} (angle and radius intervals split where linear "
         "interpolation of cor_n, cor_t or omega_out r / speed would miss by more)"
     )
+    attrs["speed_tol"] = (
+        "none (the speed nodes as given)"
+        if report.get("speed_tol") is None
+        else f"{report['speed_tol']:g} (speed intervals split where linear interpolation of "
+        "a row's cor_n, cor_t or omega_out r / speed would miss by more)"
+    )
     if "capture_tol" in report:
         attrs["radius_capture_tol"] = float(report["capture_tol"])
         attrs["radius_midpoints_checked"] = int(report["checked_midpoints"])
@@ -136,7 +142,7 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
         )
     if report.get("new_cells"):
         attrs["refined_cells"] = "; ".join(
-            f"{stage}: {sim} of {total} new (radius, angle) cells simulated, the others "
+            f"{stage}: {sim} of {total} new cells simulated, the others "
             f"interpolated (estimated miss below {FILL_SHARE:g} x refine_tol)"
             for stage, (sim, total) in report["new_cells"].items()
         )

@@ -75,6 +75,11 @@ SPEED_MAX = 1000.0  # m/s (docs/input_ranges.md)
 OUTPUTS = ("cor_n", "vt_ratio", "spin_ratio")
 #: Status of a cell that was not simulated (a stick row, or a speed above SPEED_MAX).
 NOT_SIMULATED = -1
+#: Default ``speed_tol`` of a one-radius table: the accuracy aimed for (cor_n, cor_t and
+#: omega_out r / speed within 1e-3). Measured on Table 1 at 12,000 random points: largest
+#: errors 2.2e-4, 3.4e-4 and 8.1e-4 (with 177 more speed nodes), against 3.9e-4, 2.0e-3 and
+#: 4.8e-3 without the speed pass (BENCHMARKS.md, "Wall law").
+SPEED_TOL = 1e-3
 #: Radius nodes: at most this many bisections of the given intervals, and none narrower than
 #: RADIUS_MIN_STEP in log r (0.1 % of the radius).
 RADIUS_LEVELS = 12
@@ -209,10 +214,7 @@ class WallLaw:
 
     def u_of(self, x):
         """The interpolation coordinate of the speed ratio (module docstring)."""
-        x = np.asarray(x, dtype=float)
-        if self.speed_axis == "capture_ratio":
-            return np.arcsinh(np.sqrt(np.maximum(x - 1.0, 0.0)))
-        return np.maximum(x, 0.0) ** 0.2
+        return _u(x, self.speed_axis == "capture_ratio")
 
     def evaluate(self, radius, vn, vt, omega=0.0):
         """The wall law at impacts given by ``radius`` (m), normal speed ``vn`` (m/s, > 0,
@@ -270,6 +272,14 @@ class WallLaw:
         omega_out = np.where(dead, 0.0, out["spin_ratio"] * speed / radius * sign)
         code = captured.astype(int) | (clamped.astype(int) << 1) | ((~valid).astype(int) << 2)
         return code, vn_out, vt_out, omega_out
+
+
+def _u(x, capture_ratio: bool):
+    """The interpolation coordinate of the speed axis (module docstring)."""
+    x = np.asarray(x, dtype=float)
+    if capture_ratio:
+        return np.arcsinh(np.sqrt(np.maximum(x - 1.0, 0.0)))
+    return np.maximum(x, 0.0) ** 0.2
 
 
 def _cell(nodes, q):
@@ -355,6 +365,7 @@ def wall_law(
     max_draws: int = 20,
     refine: bool = True,
     refine_tol: float = 2e-4,
+    speed_tol: float | bool | None = None,
     capture_tol: float = 1e-3,
     progress=None,
 ) -> WallLaw:
@@ -376,6 +387,11 @@ def wall_law(
     - `refine`: split the angle intervals where linear interpolation would miss by more than
       `refine_tol` in ``cor_n``, ``cor_t`` or ``omega_out r / speed`` (the onset of rolling
       puts a kink in them): a second pass on those angles only.
+    - `speed_tol`: split the speed intervals where linear interpolation (in the speed
+      coordinate) of a row would miss by more than this (the onset of rolling crosses the
+      speed axis at a ratio that moves with the angle); ``False``: not. Default (``None``):
+      :data:`SPEED_TOL` for a table of one radius; not across a radius range, where every
+      new speed node adds a cell to each (radius, angle) row (BENCHMARKS.md, "Wall law").
     - `capture_tol`: with several radii, the largest relative error of the interpolated
       capture speed at the midpoint (in log radius) of any two neighbouring radius nodes.
     - `progress`: a callable taking a one-line message, or None.
@@ -392,6 +408,10 @@ def wall_law(
     base, radius, angle, omega, x, adhesive = _grid_axes(
         scene, radius, angle_deg, omega0, speed_ratio
     )
+    if speed_tol not in (None, False) and not (
+        isinstance(speed_tol, float | int) and 0 < speed_tol < 1
+    ):
+        raise SceneError(f"speed_tol must be in (0, 1), False or None, got {speed_tol!r}")
     if not (isinstance(capture_tol, float | int) and 0 < capture_tol < 1):
         raise SceneError(f"capture_tol must be in (0, 1), got {capture_tol!r}")
     ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
@@ -405,11 +425,17 @@ def wall_law(
         ctx.radius = radius
     if refine and angle.size >= 3:
         rows, angle = _refined(ctx, rows, angle, refine_tol, say)
+    if speed_tol is None:
+        speed_tol = SPEED_TOL if radius.size == 1 else False
+    if refine and speed_tol and x.size >= 3:
+        rows = _refined_speeds(ctx, rows, radius, angle, speed_tol, say)
+        x = ctx.x
     law = _assembled(scene, rows, radius, angle, omega, x, adhesive)
     law.radius_report = {
         **report,
         "not_converged": ctx.not_converged,
         "refine_tol": refine_tol,
+        "speed_tol": float(speed_tol) if refine and speed_tol else None,
         "new_cells": ctx.new_cells,
     }
     if not refine:
@@ -493,6 +519,98 @@ def _refined(ctx, rows, angle, tol, say):
     angle = np.concatenate([angle, extra])
     order = np.argsort(angle)
     return {k: _flat_rows(v[:, order]) for k, v in rows.items()}, angle[order]
+
+
+def _refined_speeds(ctx, rows, radius, angle, tol, say):
+    """Split the speed intervals (in ``u``) where linear interpolation of a row would miss by
+    more than ``tol`` (the onset of rolling crosses the speed axis at a ratio that changes
+    with the angle; ``cor_n`` bends near the capture speed), as :func:`_refined` does for
+    angles. A row takes a new node's impact where its own miss in that interval is above
+    :data:`FILL_SHARE` of the tolerance or where it is not a plain rebounding row (a top, a
+    second capture); elsewhere the node holds the interpolation of its interval's ends. The
+    rows' tops and the node at the capture speed are then worked out again."""
+    x = ctx.x
+    u = _u(x, ctx.adhesive)
+    R = radius.size
+    n, X = rows["cor_n"].reshape(-1, x.size).shape
+    top = rows["top"].reshape(n)
+    held = x[None, :] > top[:, None]  # above the row's top: its last values repeated
+    miss = np.zeros((X - 1, n))
+    for f in _results(rows, angle, held.reshape(rows["cor_n"].shape)):
+        miss = np.maximum(miss, _interval_miss(f.reshape(n, X), u, axis=1, by=0))
+    extra_u, owner = _split(u, miss.max(axis=1), tol, most=8)
+    if not extra_u.size:
+        return rows
+    if ctx.adhesive:
+        extra = 1.0 + np.sinh(extra_u) ** 2
+    else:
+        extra = extra_u**5
+    say(f"refining: {extra.size} more speed nodes where the rows bend sharply")
+    flat = {k: v.reshape((n,) + v.shape[2:]) for k, v in rows.items()}
+    stick = ~np.isfinite(flat["v_ref"])
+    plain = (
+        ~stick
+        & (flat["again"] == 0)
+        & (top >= x[-1])
+        & (flat["status"][:, 1 if ctx.adhesive else 0 :] == 0).all(axis=1)
+    )
+    need = (miss[owner].T > FILL_SHARE * tol) | ~plain[:, None]  # (n, E)
+    need &= ~stick[:, None]
+    t = (extra_u - u[owner]) / (u[owner + 1] - u[owner])
+    new = {k: (1.0 - t) * flat[k][:, owner] + t * flat[k][:, owner + 1] for k in OUTPUTS}
+    new["status"] = np.where(stick[:, None], NOT_SIMULATED, flat["status"][:, owner])
+    new["speed"] = flat["v_ref"][:, None] * extra[None, :]
+    cells = np.argwhere(need)
+    ctx.new_cells["pass 3"] = (int(cells.shape[0]), int(need.size))
+    say(
+        f"pass 3 (refined speeds): simulating {cells.shape[0]} of {need.size} new (row, "
+        f"speed) cells (the others: their rows' interpolation is within the tolerance)"
+    )
+    if cells.size:
+        r, a, w = ctx._flat(radius, angle)
+        i, k = cells[:, 0], cells[:, 1]
+        got = ctx.impacts_at(r[i], a[i], w[i], new["speed"][i, k], "pass 3 (refined speeds)")
+        for name, v in got.items():
+            new[name][i, k] = v
+    merged = {k: np.concatenate([flat[k], new[k]], axis=1) for k in (*OUTPUTS, "status", "speed")}
+    x = np.concatenate([x, extra])
+    order = np.argsort(x)
+    x = x[order]
+    merged = {k: v[:, order] for k, v in merged.items()}
+    top, again = _top(ctx, merged, x, stick)
+    out = {**flat, **merged, "top": top, "again": again}
+    ctx.x = x
+    return {k: v.reshape((R, -1) + v.shape[1:]) for k, v in out.items()}
+
+
+def _top(ctx, rows, x, stick):
+    """Each row's top (its last speed node before the first that is not a rebound) and
+    whether it is captured again above it; the outputs above the top held at the top's, and
+    the tangential results at the capture speed extrapolated (module docstring), in place.
+    ``rows``: ``status`` and the outputs, ``(n, X)``."""
+    status = rows["status"]
+    n, X = status.shape
+    first = 1 if ctx.adhesive else 0
+    bad = np.zeros((n, X), bool)
+    bad[:, first:] = status[:, first:] != 0
+    first_bad = np.argmax(bad, axis=1)
+    top = np.where(bad.any(axis=1), first_bad - 1, X - 1)
+    top = np.where(stick, X - 1, np.maximum(top, 0))
+    # captured again above the top (not only cut by the speed range): sticks there
+    again = bad.any(axis=1) & ~stick & (status[np.arange(n), first_bad] == 1)
+    for name in OUTPUTS:
+        col = rows[name]
+        held = np.take_along_axis(col, top[:, None], axis=1)
+        col[:] = np.where(np.arange(X)[None, :] > top[:, None], held, col)
+        col[stick] = np.nan  # filled from the nearest rebounding radius (_assembled)
+    if ctx.adhesive:  # the node at the capture speed itself (module docstring)
+        u = _u(x, True)
+        t = (u[0] - u[1]) / (u[2] - u[1])
+        for name in ("vt_ratio", "spin_ratio"):
+            col = rows[name]
+            col[:, 0] = col[:, 1] + t * (col[:, 2] - col[:, 1])
+        rows["cor_n"][:, 0] = 0.0
+    return x[top], again.astype(float)
 
 
 def _grid(values, R, ctx):
@@ -704,6 +822,41 @@ class _Context:
             self.batch = radii * lanes_per_radius
         return self.batch
 
+    def impacts_at(self, r, a, w, speed, stage="") -> dict:
+        """Impacts of lanes ``(r, a, w)`` at ``speed`` (flat; no capture search), in batches of
+        the passes' lane count (one compiled program): ``status`` (:data:`NOT_SIMULATED` above
+        the speed range) and the outputs."""
+        n = r.size
+        batch = self.batch or n
+        status = np.full(n, NOT_SIMULATED)
+        out = {k: np.full(n, np.nan) for k in OUTPUTS}
+        run = speed <= SPEED_MAX
+        idx_all = np.flatnonzero(run)
+        batches = -(-idx_all.size // batch)
+        for b, lo in enumerate(range(0, idx_all.size, batch)):
+            idx = idx_all[lo : lo + batch]
+            pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
+            self.say(f"{stage}, batch {b + 1} of {batches}: {idx.size} impacts")
+            params = {k: np.full(batch, v) for k, v in self.base.items()}
+            params["radius"] = r[pad]
+            s = speed[pad]
+            res = self.simulate(scene_with(self.scene, params), s, a[pad], w[pad])
+            m = idx.size
+            status[idx] = np.asarray(res.status)[:m]
+            out["cor_n"][idx] = np.asarray(res.cor_n)[:m]
+            out["vt_ratio"][idx] = (np.asarray(res.vt_out) / s)[:m]
+            out["spin_ratio"][idx] = (np.asarray(res.omega_out) * r[pad] / s)[:m]
+            self.impacts += m
+        failed = status >= 2
+        if failed.any():
+            i = int(np.flatnonzero(failed)[0])
+            raise WallLawError(
+                f"{int(failed.sum())} impacts of the grid failed, e.g. speed "
+                f"{speed[i]:.6g} m/s, angle {a[i]:g} deg, spin {w[i]:g} rad/s, radius "
+                f"{r[i]:g} m"
+            )
+        return {"status": status, **out}
+
     def capture_speeds(self, radius, angle, unsure_as_nan=False) -> np.ndarray:
         """Capture speeds ``(R, A, W)`` (``inf`` where the sphere sticks at every speed) in
         batches of one lane count (one compiled program for every call); with
@@ -827,33 +980,15 @@ class _Context:
             )
         # The row's top: its last node before the first that is not a rebound (captured
         # again, or above the speed range); the nodes above it repeat the top's results.
-        bad = np.zeros((n, X), bool)
-        bad[:, first:] = status[:, first:] != 0
-        first_bad = np.argmax(bad, axis=1)
-        top = np.where(bad.any(axis=1), first_bad - 1, X - 1)
-        top = np.where(stick, X - 1, np.maximum(top, 0))
-        # captured again above the top (not only cut by the speed range): sticks there
-        again = bad.any(axis=1) & ~stick & (status[np.arange(n), first_bad] == 1)
-        for name in OUTPUTS:
-            col = out[name]
-            held = np.take_along_axis(col, top[:, None], axis=1)
-            col[:] = np.where(np.arange(X)[None, :] > top[:, None], held, col)
-            col[stick] = np.nan  # filled from the nearest rebounding radius (_assembled)
-        if self.adhesive:  # the node at the capture speed itself (module docstring)
-            u = np.arcsinh(np.sqrt(x - 1.0))
-            t = (u[0] - u[1]) / (u[2] - u[1])
-            for name in ("vt_ratio", "spin_ratio"):
-                col = out[name]
-                col[:, 0] = col[:, 1] + t * (col[:, 2] - col[:, 1])
-            out["cor_n"][:, 0] = 0.0
+        top, again = _top(self, {"status": status, **out}, x, stick)
         return {
             "v_c": v_c,
             "c_status": c_status,
             "v_ref": v_ref,
             "speed": speed,
             "status": status,
-            "top": x[top],
-            "again": again.astype(float),
+            "top": top,
+            "again": again,
             **out,
         }
 

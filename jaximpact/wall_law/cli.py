@@ -20,7 +20,8 @@ grids: --angle and --spin take one SPEC each, --speed one SPEC, --radius one or 
   --speed: the speed over the capture speed (>= 1; the node 1 is added) for a scene with
   adhesion, the speed in m/s for one without. Defaults: angles 0 to 85 every 0.5 deg, then
   the intervals where the table bends sharply (the onset of rolling) split to 1/16 deg
-  (--no-refine: not); 64 speed ratios from 1 to 200 even in asinh(sqrt(ratio - 1)); without
+  (--no-refine: not); 64 speed ratios from 1 to 200 even in asinh(sqrt(ratio - 1)), then,
+  for one radius, the speed intervals where a row bends sharply split (--speed-tol); without
   adhesion 49 speeds 0.01-100 m/s.
 
 output (in DIR, each file written atomically):
@@ -53,6 +54,19 @@ def _values(option: str, spec: str, name: str):
         text = str(err).replace(f"grid '{name}={spec}'", f"{option} {spec!r}")
         text = text.replace("NAME=", "").replace(f"{name} ", f"{option} ")
         raise SceneError(text) from None
+
+
+def _speed_tol(text: str):
+    """``--speed-tol``: a number in (0, 1), or ``off``."""
+    if text.strip().lower() == "off":
+        return False
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"must be a number in (0, 1) or 'off', got {text!r}")
+    return value
 
 
 def cmd_wall_law(args) -> int:
@@ -113,6 +127,7 @@ def cmd_wall_law(args) -> int:
             draws=draws,
             max_draws=args.max_draws,
             refine=not args.no_refine,
+            speed_tol=args.speed_tol,
             capture_tol=args.capture_tol,
             progress=progress,
         )
@@ -174,7 +189,7 @@ def _report(law, scene, scene_name, check) -> None:
         for stage, (sim, total) in report.get("new_cells", {}).items():
             if total > sim:
                 print(
-                    f"{stage}: {total - sim} of {total} new (radius, angle) cells interpolated "
+                    f"{stage}: {total - sim} of {total} new cells interpolated "
                     "(their rows within the refinement tolerance), not simulated"
                 )
         if report.get("not_converged"):
@@ -237,6 +252,14 @@ def add_wall_law_command(sub) -> None:
     p.add_argument("--draws", metavar="FILE.nc", help="posterior draws (fit --posterior --draws)")
     p.add_argument("--max-draws", type=int, default=20, help="draws used (default 20)")
     p.add_argument("--no-refine", action="store_true", help="no second pass on sharp bends")
+    p.add_argument(
+        "--speed-tol",
+        type=_speed_tol,
+        default=None,
+        metavar="TOL",
+        help="split speed intervals where a row's interpolation misses by more than TOL "
+        "('off': not; default 1e-3 for one radius, off across a radius range)",
+    )
     p.add_argument(
         "--capture-tol",
         type=float,
