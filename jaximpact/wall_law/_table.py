@@ -775,6 +775,12 @@ class _Context:
         self.label = ""  # which pass and batch the progress lines are about
         self.new_cells = {}  # pass -> (new cells simulated, new cells)
 
+    def params(self, r) -> dict:
+        """The scene's parameters for lanes of radii ``r`` (one value per lane)."""
+        params = {k: np.full(r.size, v) for k, v in self.base.items()}
+        params["radius"] = r
+        return params
+
     def _flat(self, radius, angle):
         R, A, W = radius.size, angle.size, self.omega.size
         r = np.broadcast_to(radius[:, None, None], (R, A, W)).reshape(-1)
@@ -837,8 +843,7 @@ class _Context:
             idx = idx_all[lo : lo + batch]
             pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
             self.say(f"{stage}, batch {b + 1} of {batches}: {idx.size} impacts")
-            params = {k: np.full(batch, v) for k, v in self.base.items()}
-            params["radius"] = r[pad]
+            params = self.params(r[pad])
             s = speed[pad]
             res = self.simulate(scene_with(self.scene, params), s, a[pad], w[pad])
             m = idx.size
@@ -906,8 +911,7 @@ class _Context:
     def _capture_scan(self, r, a, w):
         """:func:`capture_speed` of the lanes: its scan over six decades and root find."""
         n = r.size
-        params = {k: np.full(n, v) for k, v in self.base.items()}
-        params["radius"] = r
+        params = self.params(r)
         cap = capture_speed(scene_with(self.scene, params), a, w)
         self.impacts += cap.evaluations * n
         return np.asarray(cap.speed, dtype=float), np.asarray(cap.status)
@@ -922,8 +926,7 @@ class _Context:
         from .._engine.api import simulate
 
         n = r.size
-        params = {k: np.full(n, v) for k, v in self.base.items()}
-        params["radius"] = r
+        params = self.params(r)
         known = np.isfinite(guess) & (guess > 0)
         near = np.minimum(np.where(known, guess, 1.0)[:, None] * NEAR_SCAN[None, :], SPEED_MAX)
         res = _root(simulate, self.scene, params, a, w, RTOL, None, grid=near)
@@ -939,8 +942,7 @@ class _Context:
     def _lanes(self, r, a, w, guess=None) -> dict:
         n, x = r.size, self.x
         X = x.size
-        params = {k: np.full(n, v) for k, v in self.base.items()}
-        params["radius"] = r
+        params = self.params(r)
         lane_scene = scene_with(self.scene, params)
         if self.adhesive:
             self.say(f"{self.label}capture speeds of {n} (radius, angle, spin) lanes")
