@@ -290,8 +290,9 @@ def _flat_inputs(names, values, angle, omega):
     return params, flat(angle), flat(omega), shape
 
 
-def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> dict:
-    """The search of the module docstring on concrete values; numpy arrays of ``shape``."""
+def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range, program=None) -> dict:
+    """The search of the module docstring on concrete values; numpy arrays of ``shape``.
+    ``program``: the simulator's (default: by the number of lanes, below)."""
     from .._engine.api import simulate
 
     params, angle, omega, shape = _flat_inputs(names, values, angle, omega)
@@ -307,8 +308,9 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range) -> 
         # A search of a few lanes is compile-bound: the compact program compiles in half the
         # time (cold capture_speed at one angle: 6.1 against 8.6 s) and runs 2x slower
         # (warm 1.6 against 1.2 s); larger batches keep the throughput program.
-        small = lanes.size <= COMPACT_LANES
-        run = functools.partial(simulate, program="compact" if small else "throughput")
+        if program is None:
+            program = "compact" if lanes.size <= COMPACT_LANES else "throughput"
+        run = functools.partial(simulate, program=program)
         res = _root(run, scene, sub, angle[lanes], omega[lanes], rtol, speed_range)
         speed[lanes], status[lanes] = res["speed"], res["status"]
         lo_out[lanes], hi_out[lanes] = res["lo"], res["hi"]

@@ -54,7 +54,7 @@ import numpy as np
 
 from .._engine.simulate import PARAMETERS, scene_parameters
 from .._model.scene import SceneError
-from ._capture import RTOL, CaptureStatus, _root, capture_speed, scene_with
+from ._capture import RTOL, CaptureStatus, _root, _search, scene_with
 
 __all__ = [
     "DEFAULT_ANGLES",
@@ -912,9 +912,15 @@ class _Context:
         """:func:`capture_speed` of the lanes: its scan over six decades and root find."""
         n = r.size
         params = self.params(r)
-        cap = capture_speed(scene_with(self.scene, params), a, w)
-        self.impacts += cap.evaluations * n
-        return np.asarray(cap.speed, dtype=float), np.asarray(cap.status)
+        names = tuple(params)
+        # the table's own program (throughput), whatever the batch: the capture node and the
+        # rows above it from one program, and no second one to compile
+        found = _search(
+            self.scene, names, tuple(params[k] for k in names), a, w, True, RTOL, None,
+            program="throughput",
+        )  # fmt: skip
+        self.impacts += found["evaluations"] * n
+        return np.asarray(found["speed"], dtype=float), np.asarray(found["status"])
 
     def _capture_near(self, r, a, w, guess):
         """Capture speeds of lanes between nodes of one threshold, from the interpolated
