@@ -79,6 +79,32 @@ def test_oblique_spinning_impacts_match_the_reference(r2, rho2, omega2):
     for i, v in enumerate(speeds):
         q = ref.simulate_impact(p, v, angles[i], omega0[i])
         assert float(res.energy_in[i]) == pytest.approx(q.energy_in, rel=1e-12)
+        # the second sphere's spin: the reference's follows from the pair's angular momentum
+        assert float(res.omega2_out[i]) * r2 == pytest.approx(q.omega2_out * r2, abs=1e-7 * v)
+
+
+def test_second_spin_keeps_the_pairs_angular_momentum():
+    """The target's spin after the impact (``omega2_out``, a state of the engine) with the
+    particle's spin and the relative tangential velocity keep the pair's angular momentum
+    about the contact, ``I1 (w1 - w10) + I2 (w2 - w20) + (r + r2) m* (vt - vt0) = 0``, to
+    1e-9 of ``(r + r2) m* speed``; a wall scene has no such output."""
+    r2, rho2, omega2 = TARGETS[1]
+    scene = with_target(ji.table1_scene(), r2, rho2, omega2)
+    p = ref.table1_params(radius2=r2, density2=rho2, omega2=omega2)
+    speeds = np.geomspace(0.01, 5.0, 8)
+    angles, omega0 = random_impacts(5, speeds, R)
+    res = ji.simulate(scene, speeds, angles, omega0)
+    I1, I2 = p.mass * p.k2, p.mass2 * p.kappa * r2**2
+    arm = (p.radius + r2) * p.reduced_mass
+    vt0 = speeds * np.sin(np.radians(angles))
+    balance = (
+        I1 * (np.asarray(res.omega_out) - omega0)
+        + I2 * (np.asarray(res.omega2_out) - omega2)
+        + arm * (np.asarray(res.vt_out) - vt0)
+    )
+    assert np.all(np.abs(balance) < 1e-9 * arm * speeds), balance / (arm * speeds)
+    assert np.any(np.abs(np.asarray(res.omega2_out) - omega2) > 1e-3 * np.abs(omega2))
+    assert ji.simulate(ji.table1_scene(), speeds[:2], angles[:2], omega0[:2]).omega2_out is None
 
 
 @pytest.mark.slow  # a Jacobian program

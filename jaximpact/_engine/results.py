@@ -70,6 +70,9 @@ class ImpactResult(eqx.Module):
     # With model.tangential = "mindlin": the part of energy_out held by the tangential spring
     # (0 after a rebound: the spring has given its energy back by separation); else None.
     energy_tangential: jax.Array | None = None
+    # With a [target] sphere (and rotation): its spin at the end (rad/s, signed as omega2 in
+    # the scene); else None.
+    omega2_out: jax.Array | None = None
 
     @property
     def status_names(self) -> np.ndarray:

@@ -645,6 +645,8 @@ def _output_fields(terms: dyn.Terms, prob: _Problem, omega0, y, t_end, rebound, 
     )
     if terms.mindlin:  # the part of energy_out held by the spring (0 after a rebound)
         out["energy_tangential"] = dyn.tangential_energy(terms, p, y) * e_unit
+    if "w2" in y:  # the second sphere's spin
+        out["omega2_out"] = y["w2"] / u.time
     return out, losses
 
 

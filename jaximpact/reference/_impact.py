@@ -102,6 +102,7 @@ def simulate_impact(
         loss_friction=float(y[6]),
         loss_rolling=float(y[7]),
         n_out=float(y[0]) if run.status != "rebound" else 0.0,
+        omega2_out=float(model.spin2(y)) if model.pair else math.nan,
         n_segments=run.n_seg,
         message=run.message,
         history=hist,

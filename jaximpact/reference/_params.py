@@ -190,6 +190,7 @@ class ImpactResult:
     loss_friction: float
     loss_rolling: float
     n_out: float = 0.0  # overlap at the end (0 for a rebound, > 0 for a capture)
+    omega2_out: float = math.nan  # a second sphere's spin at the end (NaN: none, or no rotation)
     n_segments: int = 0  # integration restarts + 1
     message: str = ""
     history: dict | None = field(default=None, repr=False)
