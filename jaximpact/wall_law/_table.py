@@ -843,23 +843,16 @@ class _Context:
             idx = idx_all[lo : lo + batch]
             pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
             self.say(f"{stage}, batch {b + 1} of {batches}: {idx.size} impacts")
-            params = self.params(r[pad])
-            s = speed[pad]
-            res = self.simulate(scene_with(self.scene, params), s, a[pad], w[pad])
-            m = idx.size
-            status[idx] = np.asarray(res.status)[:m]
-            out["cor_n"][idx] = np.asarray(res.cor_n)[:m]
-            out["vt_ratio"][idx] = (np.asarray(res.vt_out) / s)[:m]
-            out["spin_ratio"][idx] = (np.asarray(res.omega_out) * r[pad] / s)[:m]
-            self.impacts += m
-        failed = status >= 2
-        if failed.any():
-            i = int(np.flatnonzero(failed)[0])
-            raise WallLawError(
-                f"{int(failed.sum())} impacts of the grid failed, e.g. speed "
-                f"{speed[i]:.6g} m/s, angle {a[i]:g} deg, spin {w[i]:g} rad/s, radius "
-                f"{r[i]:g} m"
+            res = self.simulate(
+                scene_with(self.scene, self.params(r[pad])), speed[pad], a[pad], w[pad]
             )
+            got = _table_outputs(res, r[pad], speed[pad])
+            m = idx.size
+            status[idx] = got.pop("status")[:m]
+            for name, v in got.items():
+                out[name][idx] = v[:m]
+            self.impacts += m
+        _check_grid(status >= 2, speed, a, w, r)
         return {"status": status, **out}
 
     def capture_speeds(self, radius, angle, unsure_as_nan=False) -> np.ndarray:
@@ -971,21 +964,13 @@ class _Context:
         self.say(f"{self.label}{n * X} impacts ({n} lanes x {X} speeds)")
         for k in range(first, X):  # one batch shape: one compiled program with the capture's
             s = run_speed[:, k]
-            res = self.simulate(lane_scene, s, a, w)
-            status[:, k] = np.asarray(res.status)
-            out["cor_n"][:, k] = np.asarray(res.cor_n)
-            out["vt_ratio"][:, k] = np.asarray(res.vt_out) / s
-            out["spin_ratio"][:, k] = np.asarray(res.omega_out) * r / s
+            got = _table_outputs(self.simulate(lane_scene, s, a, w), r, s)
+            status[:, k] = got.pop("status")
+            for name, v in got.items():
+                out[name][:, k] = v
             self.impacts += n
         status = np.where(skip, NOT_SIMULATED, status)
-        failed = (status >= 2) & ~skip
-        if failed.any():
-            i, k = (int(j[0]) for j in np.nonzero(failed))
-            raise WallLawError(
-                f"{int(failed.sum())} impacts of the grid failed, e.g. speed "
-                f"{speed[i, k]:.6g} m/s, angle {a[i]:g} deg, spin {w[i]:g} rad/s, radius "
-                f"{r[i]:g} m"
-            )
+        _check_grid((status >= 2) & ~skip, speed, a, w, r)
         # The row's top: its last node before the first that is not a rebound (captured
         # again, or above the speed range); the nodes above it repeat the top's results.
         top, again = _top(self, {"status": status, **out}, x, stick)
@@ -999,6 +984,30 @@ class _Context:
             "again": again,
             **out,
         }
+
+
+def _table_outputs(res, r, speed) -> dict:
+    """A simulated batch's ``status`` and tabulated results (module docstring) as numpy
+    arrays: ``cor_n``, ``vt_ratio = vt_out / speed``, ``spin_ratio = omega_out r / speed``."""
+    return {
+        "status": np.asarray(res.status),
+        "cor_n": np.asarray(res.cor_n),
+        "vt_ratio": np.asarray(res.vt_out) / speed,
+        "spin_ratio": np.asarray(res.omega_out) * r / speed,
+    }
+
+
+def _check_grid(failed, speed, a, w, r) -> None:
+    """Raise :class:`WallLawError` naming an impact where ``failed`` (lanes first, then
+    speeds, if 2-D)."""
+    if failed.any():
+        first = tuple(int(j[0]) for j in np.nonzero(failed))
+        i = first[0]
+        raise WallLawError(
+            f"{int(failed.sum())} impacts of the grid failed, e.g. speed "
+            f"{speed[first]:.6g} m/s, angle {a[i]:g} deg, spin {w[i]:g} rad/s, radius "
+            f"{r[i]:g} m"
+        )
 
 
 def _radius_nodes(ctx, radius, angle, tol, say):
