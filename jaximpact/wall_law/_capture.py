@@ -553,7 +553,7 @@ def _structure_key(scene, names) -> str:
 
     neutral = scene_with(scene, {n: _NOMINAL[n] for n in names})
     leaves, treedef = jax.tree_util.tree_flatten(neutral)
-    values = [np.asarray(x).tolist() for x in leaves]
+    values = [repr(x.aval) if not _is_concrete(x) else np.asarray(x).tolist() for x in leaves]
     return repr((str(treedef), tuple(names), values))
 
 
