@@ -839,10 +839,12 @@ class _Context:
         run = speed <= SPEED_MAX
         idx_all = np.flatnonzero(run)
         batches = -(-idx_all.size // batch)
+        every = -(-batches // 10)  # about ten progress lines, however many batches
         for b, lo in enumerate(range(0, idx_all.size, batch)):
             idx = idx_all[lo : lo + batch]
             pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
-            self.say(f"{stage}, batch {b + 1} of {batches}: {idx.size} impacts")
+            if b % every == 0 or b == batches - 1:
+                self.say(f"{stage}, batch {b + 1} of {batches}: {idx.size} impacts")
             res = self.simulate(
                 scene_with(self.scene, self.params(r[pad])), speed[pad], a[pad], w[pad]
             )
