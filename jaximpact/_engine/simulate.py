@@ -711,12 +711,108 @@ def _simulate_flat(terms, cfg, *args, **kwargs):
     # XLA options only on a program of its own (JAX refuses them on a nested jit)
     alone = compiled_alone(args)
     options = compiler_options(throughput=cfg.stages == "per_state") if alone else {}
-    if alone and jax.config.jax_compilation_cache_dir:
+    cached = bool(jax.config.jax_compilation_cache_dir)
+    if alone and cached:
         return _from_program_cache(terms, cfg, options, *args, **kwargs)
     key = tuple(sorted(options.items()))
     if key not in _SOLVE_FLAT_JIT:
         _SOLVE_FLAT_JIT[key] = eqx.filter_jit(_solve_flat, compiler_options=options or None)
-    return _SOLVE_FLAT_JIT[key](terms, cfg, *args, **kwargs)
+    jitted = functools.partial(_SOLVE_FLAT_JIT[key], terms, cfg)
+    if cached and kwargs.get("loop") != "diffrax" and _lean_method(cfg):
+        return _eagerly_differentiated(terms, cfg, jitted, *args, **kwargs)
+    return jitted(*args, **kwargs)
+
+
+def _eagerly_differentiated(
+    terms, cfg, jitted, params, speed, angle_deg, omega0, adjoint=None, **settings
+):
+    """The batch under a transformation outside ``jax.jit`` (a user's ``jax.grad`` or
+    ``jax.jacfwd`` of ``simulate``), with the derivatives of :func:`_differentiable` from
+    programs of the traced-program cache where the primal inputs are concrete (they are under
+    ``grad``, ``jacfwd`` and ``jacrev`` called eagerly): a warm process then loads the value
+    and tangent programs instead of tracing the tangent program again (about 3 s). The same
+    functions as the ``jitted`` path, so the same values and derivatives; other
+    transformations (``vmap``, higher derivatives) take the ``jitted`` path."""
+
+    def plain(inputs):
+        return jitted(*inputs, adjoint, **settings)
+
+    def concrete(inputs):
+        return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(inputs))
+
+    @jax.custom_jvp
+    def run(inputs):
+        if concrete(inputs):
+            options = compiler_options(throughput=cfg.stages == "per_state")
+            return _from_program_cache(terms, cfg, options, *inputs, adjoint, **settings)
+        return plain(inputs)
+
+    @functools.partial(run.defjvp, symbolic_zeros=True)
+    def run_jvp(primals, tangents):
+        (inputs,), (dinputs,) = primals, tangents
+        leaves, treedef = jax.tree_util.tree_flatten(inputs)
+        dleaves = treedef.flatten_up_to(dinputs)
+        moved = _moved(dleaves)
+        if not concrete(inputs):
+            dleaves = [
+                jnp.zeros(x.shape, x.dtype) if isinstance(d, SymbolicZero) else d
+                for x, d in zip(leaves, dleaves, strict=True)
+            ]
+            return jax.jvp(plain, (inputs,), (treedef.unflatten(dleaves),))
+        if not moved:
+            out = run(inputs)
+            return out, jax.tree_util.tree_map(_zero_tangent, out)
+        program = _tangent_program(terms, cfg, leaves, treedef, moved, settings)
+        values, columns = program(*leaves)
+        out = ImpactResult(**values)
+        dxs = [dleaves[i] for i in moved]
+        # (the last sums of ``_differentiable``'s rule, on the program's columns)
+        columns = ImpactResult(**{f: columns.get(f, v) for f, v in values.items()})
+        return out, _combine(out, columns, dxs)
+
+    return run((params, speed, angle_deg, omega0))
+
+
+def _tangent_program(terms, cfg, leaves, treedef, moved, settings):
+    """The compiled program of :func:`_differentiable`'s tangent solve for concrete inputs
+    (``leaves`` of ``treedef``, tangents along ``moved``): ``(values, columns)``, dicts by
+    ``ImpactResult`` field (columns of the float fields only), through the traced-program
+    cache (``jaximpact._io.cache.compiled_program``)."""
+    from .._io.cache import compiled_program
+
+    example = [jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding) for x in leaves]
+    options = compiler_options()
+    settings = dict(sorted(settings.items()))
+    key = repr((terms, cfg, settings, sorted(options.items()), jax.local_devices(), treedef, moved))
+    memo = ("tangents", key, repr(example))
+    if memo not in _CACHED_PROGRAMS:
+        compact = dataclasses.replace(cfg, stages=PROGRAMS["compact"])
+        solve_with_tangents = functools.partial(
+            _solve_batch,
+            terms,
+            compact,
+            settings.get("chunk"),
+            settings.get("shards", 1),
+            settings.get("loop", "lean"),
+            None,
+        )
+
+        def tangents(*xs):
+            # as in ``_solve_flat``: XLA must not see that lanes repeat
+            xs = [jax.lax.optimization_barrier(x) for x in xs]
+            out, cols = _output_columns(solve_with_tangents, xs, treedef, moved)
+            fields = tuple(ImpactResult.__dataclass_fields__)
+            values = {f: getattr(out, f) for f in fields if getattr(out, f) is not None}
+            floats = [f for f in values if jnp.issubdtype(values[f].dtype, jnp.inexact)]
+            return values, {f: getattr(cols, f) for f in floats}
+
+        _CACHED_PROGRAMS[memo], _ = compiled_program(
+            "tangents", tangents, example, key, options or None
+        )
+        while len(_CACHED_PROGRAMS) > _CACHED_PROGRAMS_KEPT:
+            _CACHED_PROGRAMS.popitem(last=False)
+    _CACHED_PROGRAMS.move_to_end(memo)
+    return _CACHED_PROGRAMS[memo]
 
 
 def _solve_flat(
@@ -799,13 +895,11 @@ def _differentiable(solve, solve_with_tangents):
     come with derivatives).
 
     The rule computes, for every input leaf that carries a tangent, the per-lane Jacobian
-    column ``d out / d x`` (``jax.jvp`` of ``solve`` along a ones-vector: lanes are
-    independent, so one tangent solve gives the column of every lane), then returns
-    ``sum_j column_j * tangent_j``. That is linear in the tangents with coefficients that
-    depend on the primal values only, so JAX can transpose it: ``jax.grad`` (reverse mode)
-    works on the forward-only ``lax.while_loop`` at the cost of one tangent solve per
-    perturbed input (a few per impact: a scene's parameters and the impact's inputs)."""
-    is_zero = lambda x: isinstance(x, SymbolicZero)  # noqa: E731
+    column ``d out / d x`` (:func:`_output_columns`), then returns ``sum_j column_j *
+    tangent_j``. That is linear in the tangents with coefficients that depend on the primal
+    values only, so JAX can transpose it: ``jax.grad`` (reverse mode) works on the
+    forward-only ``lax.while_loop`` at the cost of one tangent solve per perturbed input (a
+    few per impact: a scene's parameters and the impact's inputs)."""
 
     @jax.custom_jvp
     def run(inputs):
@@ -816,37 +910,52 @@ def _differentiable(solve, solve_with_tangents):
         (inputs,), (dinputs,) = primals, tangents
         leaves, treedef = jax.tree_util.tree_flatten(inputs)
         dleaves = treedef.flatten_up_to(dinputs)
-        moved = [i for i, d in enumerate(dleaves) if not is_zero(d)]
+        moved = _moved(dleaves)
         if not moved:
             out = solve(inputs)
             return out, jax.tree_util.tree_map(_zero_tangent, out)
-
-        def of_moved(xs):
-            full = list(leaves)
-            for i, x in zip(moved, xs, strict=True):
-                full[i] = x
-            return solve_with_tangents(treedef.unflatten(full))
-
-        xs = [leaves[i] for i in moved]
-        basis = [
-            [jnp.full_like(x, 1.0 if i == j else 0.0) for j, x in enumerate(xs)]
-            for i in range(len(xs))
-        ]
-        basis = jax.tree_util.tree_map(lambda *b: jnp.stack(b), *basis)
-        out, columns = jax.vmap(lambda t: jax.jvp(of_moved, (xs,), (t,)), out_axes=(None, 0))(basis)
-        dxs = [dleaves[i] for i in moved]
-
-        def combine(y, col):
-            if not jnp.issubdtype(y.dtype, jnp.inexact):
-                return _zero_tangent(y)
-            acc = col[0] * dxs[0]
-            for j in range(1, len(dxs)):
-                acc = acc + col[j] * dxs[j]
-            return acc
-
-        return out, jax.tree_util.tree_map(combine, out, columns)
+        out, columns = _output_columns(solve_with_tangents, leaves, treedef, moved)
+        return out, _combine(out, columns, [dleaves[i] for i in moved])
 
     return run
+
+
+def _moved(dleaves) -> list:
+    """Indices of the input leaves that carry a tangent (not a symbolic zero)."""
+    return [i for i, d in enumerate(dleaves) if not isinstance(d, SymbolicZero)]
+
+
+def _output_columns(solve_with_tangents, leaves, treedef, moved):
+    """``(out, columns)``: the outputs and, stacked on a leading axis, their per-lane
+    derivatives along each input leaf in ``moved`` (``jax.jvp`` along a ones-vector: lanes are
+    independent, so one tangent solve gives the column of every lane)."""
+
+    def of_moved(xs):
+        full = list(leaves)
+        for i, x in zip(moved, xs, strict=True):
+            full[i] = x
+        return solve_with_tangents(treedef.unflatten(full))
+
+    xs = [leaves[i] for i in moved]
+    basis = [
+        [jnp.full_like(x, 1.0 if i == j else 0.0) for j, x in enumerate(xs)] for i in range(len(xs))
+    ]
+    basis = jax.tree_util.tree_map(lambda *b: jnp.stack(b), *basis)
+    return jax.vmap(lambda t: jax.jvp(of_moved, (xs,), (t,)), out_axes=(None, 0))(basis)
+
+
+def _combine(out, columns, dxs):
+    """The outputs' tangents ``sum_j column_j * dx_j`` (zero for integer outputs)."""
+
+    def combine(y, col):
+        if not jnp.issubdtype(y.dtype, jnp.inexact):
+            return _zero_tangent(y)
+        acc = col[0] * dxs[0]
+        for j in range(1, len(dxs)):
+            acc = acc + col[j] * dxs[j]
+        return acc
+
+    return jax.tree_util.tree_map(combine, out, columns)
 
 
 def _zero_tangent(y):
