@@ -577,6 +577,14 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
         for k in ("loss_hertz_damping", "loss_adhesion_damping", "peak"):
             if k in y:
                 y[k] = y[k] + entry[k] + jnp.where(separated, exit_[k], 0.0)
+    if "slide_time" in y:
+        # The latch covers the integrated part of the contact only (the shells are crossed in
+        # closed form): a sphere that slid to the end of it never rolled; the onset of rolling
+        # counts from the first touch, the entry shell included.
+        slid_through = y["slide_time"] >= t_end * (1 - 1e-4) - 1e-6
+        y["slide_time"] = jnp.where(
+            slid_through, t_end + shell_time, y["slide_time"] + entry["time"]
+        )
     t_end = t_end + shell_time
     status = jnp.where(
         ~finite,
