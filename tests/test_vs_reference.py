@@ -166,7 +166,9 @@ def test_roll_time_agrees_with_exact_reference():
     angle = np.array([70.0, 80.0, 80.0, 80.0, 70.0, 30.0, 20.0, 45.0])
     res = ji.simulate(scene, speed, angle, 0.0)
     engine = np.asarray(res.roll_time)
-    exact = np.array([ref.simulate_impact(params, v, a).roll_time for v, a in zip(speed, angle)])
+    exact = np.array(
+        [ref.simulate_impact(params, v, a).roll_time for v, a in zip(speed, angle, strict=True)]
+    )
     np.testing.assert_array_equal(np.isnan(engine), np.isnan(exact))
     assert np.isnan(exact).sum() == 5  # both kinds present
     rolled = ~np.isnan(exact)

@@ -999,6 +999,13 @@ def _solve_batch(terms, cfg, chunk, shards, loop, adjoint, inputs):
         lambda prm, s, a, w: _solve_one(terms, cfg, prm, s, a, w, adjoint, loop)
     )(*xs)
     size = speed.shape[0]
+    if not _lean_method(cfg) and size <= IMPLICIT_MAPPED_LANES:
+        # A few impacts of an implicit method one after another: tracing diffrax's implicit
+        # stages, root finds and event under vmap doubles the tracing (Kvaerno5, 3 impacts:
+        # first call 12.4 s against 19.2 s), at about 5x the run time per impact.
+        solve = lambda xs: jax.lax.map(  # noqa: E731
+            lambda x: _solve_one(terms, cfg, *x, adjoint, loop), xs
+        )
     # lanes per chunk: the chunks as equal as can be, whole lane groups (per_state)
     group = lane_group(speed.dtype, cfg.stages)
     n_chunks = -(-size // chunk) if chunk else 1
@@ -1163,6 +1170,12 @@ def _simulate(
         result = _mark_invalid(result, valid)
     return jax.tree_util.tree_map(lambda x: x.reshape(shape), result)
 
+
+# Batches of an implicit method (Kvaerno5) of at most this many impacts are solved one impact
+# after another (``lax.map``) instead of vmapped: a few impacts' first call compiles in about
+# 2/3 of the time (BENCHMARKS.md, "First result"), for about 80 ms per impact instead of 15
+# (Table 1, 0.3-3 m/s). Implicit solves are not batch-exact either way (docs/open_points.md).
+IMPLICIT_MAPPED_LANES = 16
 
 # A small concrete batch of an explicit method is padded (copies of its last impact) to the
 # first of these lane counts that holds it, so that batches of 3, 10 and 50 impacts of a scene
