@@ -50,6 +50,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=4000)
     ap.add_argument("--per-side", type=int, nargs="+", default=[8, 16, 32])
+    ap.add_argument(
+        "--radii",
+        type=float,
+        nargs="*",
+        default=[10e-6, 12e-6, 15e-6, 20e-6, 50e-6, 100e-6],
+        help="radii (m) at which to map where the sphere rolls (step 1 only)",
+    )
     args = ap.parse_args()
     ji.use_all_cpu_cores()
     t0 = time.perf_counter()
@@ -172,6 +179,7 @@ def main() -> None:
                  "angles": len(default.angle_deg), "speeds": len(default.speed_ratio),
                  "errors": errors(values)})  # fmt: skip
 
+    survey = [_rolling_survey(scene, r) for r in args.radii]
     info = machine()
     print(
         f"\n{info}; {int(ok.sum())} rebounding points in the band; {time.perf_counter() - t0:.0f} s"
@@ -187,8 +195,51 @@ def main() -> None:
         cols = " | ".join(f"{e[o]['max']:.1e} ({e[o]['p99']:.1e})" for o in OUTPUTS)
         print(f"| {r['table']} | {r['angles']} | {r['speeds']} | {cols} |")
     out = Path(__file__).resolve().parent / "results" / "wall_law_kink.json"
+    print(
+        "\n| radius um | rebounding cells | speed ratios with 0 / 1 / 2+ changes | theta* (deg) "
+        "| 0 changes, rolls at every angle |"
+    )
+    print("|---|---|---|---|---|")
+    for r in survey:
+        counted = f"{r['zero']} / {r['one']} / {r['more']}"
+        rolls = r["zero_rolling_at_every_angle"]
+        print(
+            f"| {r['radius'] * 1e6:g} | {r['rebounding']} | {counted} "
+            f"| {r['theta_star']} | {rolls} |"
+        )
     out.write_text(json.dumps({"machine": info, "theta_star": [xb.tolist(), tstar.tolist()],
-                               "changes": changes.tolist(), "rows": rows}, indent=1))  # fmt: skip
+                               "changes": changes.tolist(), "rows": rows, "survey": survey},
+                              indent=1))  # fmt: skip
+
+
+def _rolling_survey(scene, radius: float) -> dict:
+    """Where the sphere of ``radius`` rolls on the first-pass grid (rebounding cells only):
+    per speed ratio, the number of changes along the angle, and the range of the angle of the
+    change where there is one (to the grid's 0.5 deg)."""
+    scene = scene.replace(particle={"radius": radius})
+    law = wall_law(scene, refine=False, speed_tol=False)
+    speed = law.speed[0, :, 0, :].T  # (speed ratio, angle)
+    ok = law.status[0, :, 0, :].T == 0
+    angle = np.broadcast_to(law.angle_deg[None, :], speed.shape)
+    res = ji.simulate(scene, np.where(ok, speed, 1.0).ravel(), angle.ravel(), 0.0)
+    rolled = np.isfinite(np.asarray(res.roll_time)).reshape(speed.shape)
+    counts, where, rolls_only = [], [], 0
+    for j in range(speed.shape[0]):
+        r = rolled[j][ok[j]]
+        if r.size < 2:
+            continue
+        flips = np.flatnonzero(np.diff(r.astype(int)))
+        counts.append(len(flips))
+        rolls_only += int(len(flips) == 0 and r.all())
+        if len(flips) == 1:
+            where.append(float(law.angle_deg[ok[j]][flips[0] + 1]))
+    counts = np.asarray(counts)
+    span = f"{min(where):.1f} - {max(where):.1f}" if where else "-"
+    return {
+        "radius": radius, "rebounding": int(ok.sum()), "zero": int(np.sum(counts == 0)),
+        "one": int(np.sum(counts == 1)), "more": int(np.sum(counts > 1)), "theta_star": span,
+        "zero_rolling_at_every_angle": rolls_only,
+    }  # fmt: skip
 
 
 if __name__ == "__main__":
