@@ -400,11 +400,6 @@ class Scene(eqx.Module):
     target: Target | None = None
 
     def __check_init__(self):
-        if self.model.tangential == "mindlin" and self.target is not None:
-            raise SceneError(
-                'model.tangential = "mindlin" is not available with a [target] sphere yet '
-                "(docs/open_points.md)"
-            )
         if self.model.tangential == "mindlin" and self.model.normal == "jkr":
             raise SceneError(
                 'model.tangential = "mindlin" is not available with model.normal = "jkr" yet '

@@ -17,42 +17,69 @@ _STICK = 0
 
 
 class _MindlinModel:
-    """State ``[n, ndot, tdot, w, xi, work_t, loss_HD, loss_AD, loss_R]`` (SI)."""
+    """State ``[n, ndot, tdot, w, xi, work_t, loss_HD, loss_AD, loss_R]`` (SI); ``tdot`` is the
+    relative tangential velocity. With a second sphere (``p.target``, with rotation) its spin
+    follows from the pair's angular momentum, as in the rigid model (no extra state)."""
 
-    def __init__(self, p: Params):
+    def __init__(self, p: Params, vt0: float = 0.0, w0: float = 0.0):
         self.p = p
-        self.m = p.mass
-        self.r = p.radius
+        self.m = p.reduced_mass  # the relative motion's (the sphere's own on the wall)
+        self.r = p.radius  # the sphere's moment arm
+        self.rc = p.reduced_radius  # the contact's radius (the sphere's on the wall)
         self.k2 = p.k2 if p.rotation else 0.0
+        self.I1 = p.mass * self.k2
         self.f = p.friction
+        self.pair = p.target and p.rotation
+        if self.pair:
+            self.r2 = p.radius2
+            self.I2 = p.mass2 * p.kappa * p.radius2**2
+            self.start = (vt0, w0, p.omega2)
         self.rigid = _Model(p)  # for the kink functions of the normal force
 
     def stiffness(self, n):
-        return 8.0 * self.p.G_star * math.sqrt(self.r * n) if n > 0 else 0.0
+        return 8.0 * self.p.G_star * math.sqrt(self.rc * n) if n > 0 else 0.0
 
     def stiffness_slope(self, n):
-        return 4.0 * self.p.G_star * math.sqrt(self.r / n) if n > 0 else 0.0
+        return 4.0 * self.p.G_star * math.sqrt(self.rc / n) if n > 0 else 0.0
+
+    def spin2(self, y):
+        """The second sphere's spin (0 on the wall): I1 (w - w0) + I2 (w2 - w20) + (r + r2)
+        m* (vt - vt0) = 0."""
+        if not self.pair:
+            return 0.0
+        vt0, w0, w20 = self.start
+        return w20 - ((self.r + self.r2) * self.m * (y[2] - vt0) + self.I1 * (y[3] - w0)) / self.I2
+
+    def ring_spin(self, y):
+        """The spin the ring and the rolling moments see: relative to the second sphere."""
+        return y[3] - self.spin2(y) if self.pair else y[3]
 
     def slip(self, y):
-        return y[2] - self.r * y[3] if self.p.rotation else y[2]
+        if not self.p.rotation:
+            return y[2]
+        s = y[2] - self.r * y[3]
+        return s - self.r2 * self.spin2(y) if self.pair else s
+
+    def forces(self, y):
+        return contact_forces(self.p, y[0], y[1], self.ring_spin(y))
 
     def cap(self, y):
         k = self.stiffness(y[0])
         if k <= 0:
             return 0.0
-        return self.f * contact_forces(self.p, y[0], y[1], y[3])["N"] / k
+        return self.f * self.forces(y)["N"] / k
 
     def xi(self, y, mode):
         return y[4] if mode == _STICK else mode * self.cap(y)
 
     def rhs(self, y, mode):
         n, ndot, w = y[0], y[1], y[3]
-        fc = contact_forces(self.p, n, ndot, w)
+        fc = self.forces(y)
         xi = self.xi(y, mode)
         F_t = -self.stiffness(n) * xi
         F_U = -0.5 * self.stiffness_slope(n) * xi * xi
         s = self.slip(y)
-        wdot = (-self.r * F_t + fc["M"]) / (self.m * self.k2) if self.p.rotation else 0.0
+        wdot = (-self.r * F_t + fc["M"]) / self.I1 if self.p.rotation else 0.0
         return [
             ndot,
             (fc["F_n"] + F_U) / self.m,
@@ -62,7 +89,7 @@ class _MindlinModel:
             F_t * s + F_U * ndot,
             -fc["F_HD"] * ndot,
             -fc["F_AD"] * ndot,
-            -fc["M"] * w,
+            -fc["M"] * self.ring_spin(y) if self.pair else -fc["M"] * w,
         ]
 
     def cap_rate(self, y, mode):
@@ -73,7 +100,7 @@ class _MindlinModel:
             return 0.0
         nddot = self.rhs(y, mode)[1]
         if not p.adhesion:
-            kr = p.K * math.sqrt(self.r)
+            kr = p.K * math.sqrt(self.rc)
             if p.friction_load == "hertz":
                 load, load_rate = kr * n**1.5, 1.5 * kr * math.sqrt(n) * ndot
             else:
@@ -94,9 +121,19 @@ class _MindlinModel:
     def normal_energy(self, y):
         return 0.5 * self.m * y[1] ** 2 + normal_potential(self.p, y[0])
 
+    def kinetic_energy(self, y):
+        """Of the tangential motion and the spins."""
+        kinetic = 0.5 * (self.m * y[2] ** 2 + self.I1 * y[3] ** 2)
+        return kinetic + (0.5 * self.I2 * self.spin2(y) ** 2 if self.pair else 0.0)
+
     def mechanical_energy(self, y, mode):
-        kinetic = 0.5 * self.m * (y[2] ** 2 + self.k2 * y[3] ** 2)
-        return self.normal_energy(y) + kinetic + self.spring_energy(y, mode)
+        return self.normal_energy(y) + self.kinetic_energy(y) + self.spring_energy(y, mode)
+
+    def kink_functions(self):
+        return self.rigid.kink_functions(spin=self.ring_spin, normal_force=self.normal_force)
+
+    def normal_force(self, y):
+        return self.forces(y)["F_n"]
 
     def mode_functions(self, mode):
         """(function, next mode) pairs whose downward zero ends the mode."""
@@ -105,7 +142,7 @@ class _MindlinModel:
         if mode == _STICK:
 
             def limit(y):
-                return self.f * contact_forces(self.p, y[0], y[1], y[3])["N"]
+                return self.f * self.forces(y)["N"]
 
             return [
                 (lambda y: limit(y) - self.stiffness(y[0]) * y[4], 1),
@@ -117,14 +154,14 @@ class _MindlinModel:
 def _simulate_mindlin(
     p, speed, angle_deg, omega0, *, rtol, atol, method, t_max, detect_capture, max_segments
 ):
-    model = _MindlinModel(p)
-    m, r = model.m, model.r
     th = math.radians(angle_deg)
     v_n, v_t = speed * math.cos(th), speed * math.sin(th)
     w0 = float(omega0) if p.rotation else 0.0
+    model = _MindlinModel(p, v_t, w0)
+    m, r = model.m, model.r
     n_star, _ = hertz_scales(p, v_n)
     L = max(n_star, p.adhesive_overlap)
-    T = math.sqrt(m / (p.K * math.sqrt(r) * math.sqrt(L)))
+    T = math.sqrt(m / (p.K * math.sqrt(model.rc) * math.sqrt(L)))
     V = L / T
     Vt = max(V, abs(v_t), r * abs(w0))
     E0 = m * max(V, speed, Vt) ** 2
@@ -134,7 +171,7 @@ def _simulate_mindlin(
     n_eps = _N_EPS * L
     t = n_eps / v_n
     y = np.array([n_eps, v_n, v_t, w0, 0.0, 0.0, 0.0, 0.0, 0.0])
-    energy_in = 0.5 * m * speed**2 + 0.5 * m * model.k2 * w0**2
+    energy_in = 0.5 * m * v_n**2 + model.kinetic_energy(y)
     roll_time = 0.0 if model.slip(y) == 0 else math.nan
 
     run = _MindlinRun(model, S, L, T, rtol, atol, method, detect_capture and p.adhesion, n_eps)
@@ -160,6 +197,7 @@ def _simulate_mindlin(
         loss_friction=float(-y[5] - spring),
         loss_rolling=float(y[8]),
         n_out=float(y[0]) if run.status != "rebound" else 0.0,
+        omega2_out=float(model.spin2(y)) if model.pair else math.nan,
         n_segments=run.n_seg,
         message=run.message,
     )
@@ -177,7 +215,7 @@ class _MindlinRun:
             self.base.append((model.normal_energy, True, -1, "captured"))
         self.base.append((lambda y: y[1], False, -1, "turn"))
         self.base.append((model.slip, False, 0, "zero_slip"))
-        self.kinks = model.rigid.kink_functions()
+        self.kinks = model.kink_functions()
         self.h_look = _LOOKAHEAD * T
         self.status, self.message, self.max_overlap, self.n_seg = "failed", "", n_eps, 0
 

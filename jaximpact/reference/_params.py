@@ -55,8 +55,6 @@ class Params:
     def __post_init__(self):
         if self.normal not in NORMAL_LAWS:
             raise ValueError(f"normal must be one of {NORMAL_LAWS}")
-        if self.target and self.tangential == "mindlin":
-            raise ValueError("tangential = 'mindlin' is not available with a second sphere")
         if self.normal == "jkr" and self.tangential == "mindlin":
             raise ValueError("tangential = 'mindlin' is not available with normal = 'jkr'")
         if self.tangential not in ("rigid", "mindlin"):

@@ -176,19 +176,21 @@ class _Model:
         y[6] -= self.tangential_energy(y) - ke0
         return y
 
-    def kink_functions(self) -> list:
-        """Functions whose zeros are kinks of the right-hand side (not mode switches)."""
+    def kink_functions(self, spin=None, normal_force=None) -> list:
+        """Functions whose zeros are kinks of the right-hand side (not mode switches);
+        ``spin`` and ``normal_force`` (functions of the state) for another model's state."""
         p = self.p
+        spin = spin or self.ring_spin
         out = []
         if p.ring and p.f0 * p.C_A > 0:
             if p.rolling_moments == "analytical":
                 r = p.reduced_radius
-                out.append(lambda y: y[1] - self.ring_spin(y) * math.sqrt(r * max(y[0], 0.0)))
-                out.append(lambda y: y[1] + self.ring_spin(y) * math.sqrt(r * max(y[0], 0.0)))
+                out.append(lambda y: y[1] - spin(y) * math.sqrt(r * max(y[0], 0.0)))
+                out.append(lambda y: y[1] + spin(y) * math.sqrt(r * max(y[0], 0.0)))
             else:
                 out.append(lambda y: y[1])
         if self.f > 0 and p.friction_load == "net":
-            out.append(self.normal_force)
+            out.append(normal_force or self.normal_force)
         return out
 
     def normal_force(self, y) -> float:
