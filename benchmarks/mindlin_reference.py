@@ -7,13 +7,19 @@ with `jaximpact.simulate` at the scene's defaults and one by one by `jaximpact.r
 (`vn_out`, `vt_out`, `omega_out * r`) in units of the impact speed; issue 35's target: every
 one within 1e-5.
 
-Run: ``python benchmarks/mindlin_reference.py [--slip-width W]`` (about 1 minute).
+With ``--target R2 RHO2 OMEGA2`` the same impacts strike a second sphere (radius m, density
+kg/m^3, spin rad/s) instead of the anvil, and its spin after the impact (`omega2_out * r2`) is
+compared too.
+
+Run: ``python benchmarks/mindlin_reference.py [--slip-width W] [--target R2 RHO2 OMEGA2]``
+(about 1 minute).
 """
 
 import argparse
 import sys
 from pathlib import Path
 
+import equinox as eqx
 import jax
 
 jax.config.update("jax_enable_x64", True)
@@ -36,42 +42,56 @@ def points(n=40, seed=2027):
     return {k: rng.uniform(lo, hi, n) for k, (lo, hi) in RANGES.items()}
 
 
-def errors(pts, solver=None):
-    """``{output: |engine - reference| / speed}`` per impact, and the engine's step counts."""
+def errors(pts, solver=None, target=None):
+    """``{output: |engine - reference| / speed}`` per impact, and the engine's step counts;
+    ``target``: ``(radius, density, spin)`` of a second sphere, or None (the anvil)."""
     base = ji.load_scene("kharaz2001")
     scene = base.replace(
         model={"tangential": "mindlin"},
         contact={"friction": pts["friction"], "G_star": G_ALUMINA * pts["G"]},
         solver=solver or {},
     )
+    pair = {}
+    if target is not None:
+        r2, rho2, w2 = target
+        second = ji.Target(radius=r2, density=rho2, omega0=w2)
+        scene = eqx.tree_at(lambda s: s.target, scene, second, is_leaf=lambda x: x is None)
+        pair = {"radius2": r2, "density2": rho2, "omega2": w2}
     res = ji.simulate(scene, pts["speed"], pts["angle"])
     r = float(base.particle.radius)
     out = {"vn_out": [], "vt_out": [], "omega_out r": []}
+    if target is not None:
+        out["omega2_out r2"] = []
     for i, (v, a, f, g) in enumerate(zip(*pts.values(), strict=True)):
         params = ref.Params(
             radius=r, density=float(base.particle.density), K=float(base.contact.K),
             C_H=float(base.contact.C_H), friction=float(f), adhesion=False,
-            rolling_moments="none", tangential="mindlin", G_star=G_ALUMINA * float(g),
+            rolling_moments="none", tangential="mindlin", G_star=G_ALUMINA * float(g), **pair,
         )  # fmt: skip
         exact = ref.simulate_impact(params, float(v), float(a), rtol=1e-12, atol=1e-15)
         assert exact.status == "rebound", (i, exact.status)
         out["vn_out"].append(abs(float(res.vn_out[i]) - exact.vn_out) / v)
         out["vt_out"].append(abs(float(res.vt_out[i]) - exact.vt_out) / v)
         out["omega_out r"].append(abs(float(res.omega_out[i]) - exact.omega_out) * r / v)
+        if target is not None:
+            miss = abs(float(res.omega2_out[i]) - exact.omega2_out) * target[0] / v
+            out["omega2_out r2"].append(miss)
     return {k: np.array(e) for k, e in out.items()}, np.asarray(res.steps)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--slip-width", type=float, help="solver.slip_width (default: the scene's)")
+    ap.add_argument("--target", type=float, nargs=3, metavar=("R2", "RHO2", "OMEGA2"))
     args = ap.parse_args()
     solver = {"slip_width": args.slip_width} if args.slip_width else {}
     info = machine()
     pts = points()
-    err, steps = errors(pts, solver)
+    err, steps = errors(pts, solver, args.target)
     worst = max(range(len(steps)), key=lambda i: max(e[i] for e in err.values()))
     rows = [[k, f"{np.median(e):.1e}", f"{np.max(e):.1e}"] for k, e in err.items()]
-    print(measured_line(info, "python benchmarks/mindlin_reference.py", solver or None))
+    settings = {**solver, **({"target": args.target} if args.target else {})}
+    print(measured_line(info, "python benchmarks/mindlin_reference.py", settings or None))
     print(table(["output / speed", "median error", "largest error"], rows))
     print(f"\nsteps: mean {steps.mean():.0f}, largest {steps.max()}; worst impact: "
           + ", ".join(f"{k} {v[worst]:.3g}" for k, v in pts.items()))  # fmt: skip
