@@ -60,6 +60,28 @@ def test_full_sliding_limit():
     assert float(res.vt_out) - v_t == pytest.approx(-f * (1 + e) * v_n, rel=1e-5)
 
 
+def test_rolling_onset_angle_closed_form():
+    """Coulomb friction on the whole normal impulse ``m v_n (1 + e)`` (no adhesion, no
+    rolling moment) brings the slip ``v_t`` down by ``7/2 f (1 + e) v_n``: the sphere reaches
+    rolling (``roll_time`` finite) below ``tan(theta*) = 7/2 f (1 + e)`` and slides through
+    (NaN) above it; 1 % either side of ``theta*``. The restitution ``e`` is that of a normal
+    impact at ``v cos(theta)`` (the normal motion does not see the slip; checked too), so
+    ``theta*`` is found by a fixed-point iteration."""
+    f, v = 0.1, 1.0
+    scene = elastic_scene(friction=f).replace(contact={"C_H": 0.05})
+    star = 0.0
+    for _ in range(6):
+        e = float(ji.simulate(scene, v * math.cos(math.radians(star)), 0.0).cor_n)
+        star = math.degrees(math.atan(3.5 * f * (1 + e)))
+    assert e < 0.99  # the damping is doing something
+    angles = np.array([0.5, 0.99, 1.01, 1.5]) * star
+    res = ji.simulate(scene, v, angles)
+    rolled = np.isfinite(np.asarray(res.roll_time))
+    np.testing.assert_array_equal(rolled, [True, True, False, False])
+    normal = ji.simulate(scene, v * np.cos(np.radians(angles)), 0.0)
+    np.testing.assert_allclose(np.asarray(res.cor_n), np.asarray(normal.cor_n), rtol=1e-8)
+
+
 @pytest.mark.parametrize("omega0", [0.0, 300.0, -500.0])
 def test_rolling_exit_limit(omega0):
     # Small incidence, high friction: the sphere leaves rolling, v_t = r w = (5 v_t0 + 2 r w0)/7.
