@@ -461,6 +461,7 @@ def test_invalid_traced_inputs_get_their_own_status_and_nan():
     np.testing.assert_allclose(np.asarray(r.cor_n)[~bad], np.asarray(good.cor_n), rtol=1e-12)
 
 
+@pytest.mark.slow  # a Kvaerno5 program of its own: CI's second step
 def test_a_few_implicit_impacts_do_not_depend_on_their_batch(table1):
     """Kvaerno5 solves a batch of at most ``IMPLICIT_MAPPED_LANES`` impacts one after another:
     an oblique impact gives the same bits alone, in the batch and in the batch reversed (a
