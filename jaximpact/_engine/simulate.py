@@ -757,10 +757,7 @@ def _eagerly_differentiated(
 
     @functools.partial(run.defjvp, symbolic_zeros=True)
     def run_jvp(primals, tangents):
-        (inputs,), (dinputs,) = primals, tangents
-        leaves, treedef = jax.tree_util.tree_flatten(inputs)
-        dleaves = treedef.flatten_up_to(dinputs)
-        moved = _moved(dleaves)
+        inputs, leaves, treedef, dleaves, moved = _rule_inputs(primals, tangents)
         if not concrete(inputs):
             dleaves = [
                 jnp.zeros(x.shape, x.dtype) if isinstance(d, SymbolicZero) else d
@@ -915,10 +912,7 @@ def _differentiable(solve, solve_with_tangents):
 
     @functools.partial(run.defjvp, symbolic_zeros=True)
     def run_jvp(primals, tangents):
-        (inputs,), (dinputs,) = primals, tangents
-        leaves, treedef = jax.tree_util.tree_flatten(inputs)
-        dleaves = treedef.flatten_up_to(dinputs)
-        moved = _moved(dleaves)
+        inputs, leaves, treedef, dleaves, moved = _rule_inputs(primals, tangents)
         if not moved:
             out = solve(inputs)
             return out, jax.tree_util.tree_map(_zero_tangent, out)
@@ -928,9 +922,14 @@ def _differentiable(solve, solve_with_tangents):
     return run
 
 
-def _moved(dleaves) -> list:
-    """Indices of the input leaves that carry a tangent (not a symbolic zero)."""
-    return [i for i, d in enumerate(dleaves) if not isinstance(d, SymbolicZero)]
+def _rule_inputs(primals, tangents):
+    """A JVP rule's ``(inputs, leaves, treedef, tangent leaves, moved)``: ``moved``, the
+    indices of the input leaves that carry a tangent (not a symbolic zero)."""
+    (inputs,), (dinputs,) = primals, tangents
+    leaves, treedef = jax.tree_util.tree_flatten(inputs)
+    dleaves = treedef.flatten_up_to(dinputs)
+    moved = [i for i, d in enumerate(dleaves) if not isinstance(d, SymbolicZero)]
+    return inputs, leaves, treedef, dleaves, moved
 
 
 def _output_columns(solve_with_tangents, leaves, treedef, moved):
