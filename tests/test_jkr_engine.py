@@ -142,6 +142,7 @@ def test_capture_speed_agrees_with_the_reference():
     assert float(res.vn_out[1]) == pytest.approx(q.vn_out, abs=1e-6 * v_c)
 
 
+@pytest.mark.slow  # a Jacobian program of the JKR law (23 s): CI's second step
 def test_derivatives_match_central_differences_of_the_reference():
     """``d/dw``, ``d/dC_H`` and the impact's inputs of an oblique spinning rebound, from
     ``output_jacobian``, against the reference's Richardson-checked central differences."""
