@@ -29,12 +29,9 @@ class _MindlinModel:
         self.k2 = p.k2 if p.rotation else 0.0
         self.I1 = p.mass * self.k2
         self.f = p.friction
-        self.pair = p.target and p.rotation
-        if self.pair:
-            self.r2 = p.radius2
-            self.I2 = p.mass2 * p.kappa * p.radius2**2
-            self.start = (vt0, w0, p.omega2)
-        self.rigid = _Model(p)  # for the kink functions of the normal force
+        # the kink functions of the normal force, and a second sphere's spin and inertia
+        self.rigid = _Model(p, vt0, w0)
+        self.pair = self.rigid.pair
 
     def stiffness(self, n):
         return 8.0 * self.p.G_star * math.sqrt(self.rc * n) if n > 0 else 0.0
@@ -43,12 +40,9 @@ class _MindlinModel:
         return 4.0 * self.p.G_star * math.sqrt(self.rc / n) if n > 0 else 0.0
 
     def spin2(self, y):
-        """The second sphere's spin (0 on the wall): I1 (w - w0) + I2 (w2 - w20) + (r + r2)
-        m* (vt - vt0) = 0."""
-        if not self.pair:
-            return 0.0
-        vt0, w0, w20 = self.start
-        return w20 - ((self.r + self.r2) * self.m * (y[2] - vt0) + self.I1 * (y[3] - w0)) / self.I2
+        """The second sphere's spin (0 on the wall; the state holds the relative tangential
+        velocity itself)."""
+        return self.rigid.spin2_from(y[2], y[3]) if self.pair else 0.0
 
     def ring_spin(self, y):
         """The spin the ring and the rolling moments see: relative to the second sphere."""
@@ -58,7 +52,7 @@ class _MindlinModel:
         if not self.p.rotation:
             return y[2]
         s = y[2] - self.r * y[3]
-        return s - self.r2 * self.spin2(y) if self.pair else s
+        return s - self.rigid.r2 * self.spin2(y) if self.pair else s
 
     def forces(self, y):
         return contact_forces(self.p, y[0], y[1], self.ring_spin(y))
@@ -73,7 +67,7 @@ class _MindlinModel:
         return y[4] if mode == _STICK else mode * self.cap(y)
 
     def rhs(self, y, mode):
-        n, ndot, w = y[0], y[1], y[3]
+        n, ndot = y[0], y[1]
         fc = self.forces(y)
         xi = self.xi(y, mode)
         F_t = -self.stiffness(n) * xi
@@ -89,7 +83,7 @@ class _MindlinModel:
             F_t * s + F_U * ndot,
             -fc["F_HD"] * ndot,
             -fc["F_AD"] * ndot,
-            -fc["M"] * self.ring_spin(y) if self.pair else -fc["M"] * w,
+            -fc["M"] * self.ring_spin(y),
         ]
 
     def cap_rate(self, y, mode):
@@ -124,7 +118,7 @@ class _MindlinModel:
     def kinetic_energy(self, y):
         """Of the tangential motion and the spins."""
         kinetic = 0.5 * (self.m * y[2] ** 2 + self.I1 * y[3] ** 2)
-        return kinetic + (0.5 * self.I2 * self.spin2(y) ** 2 if self.pair else 0.0)
+        return kinetic + (0.5 * self.rigid.I2 * self.spin2(y) ** 2 if self.pair else 0.0)
 
     def mechanical_energy(self, y, mode):
         return self.normal_energy(y) + self.kinetic_energy(y) + self.spring_energy(y, mode)

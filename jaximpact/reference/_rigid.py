@@ -46,13 +46,13 @@ class _Model:
 
     def spin2(self, y) -> float:
         """The second sphere's spin (0 on the wall)."""
-        if not self.pair:
-            return 0.0
+        return self.spin2_from(self.tdot(y), y[3]) if self.pair else 0.0
+
+    def spin2_from(self, vt, w) -> float:
+        """The second sphere's spin at relative tangential velocity ``vt`` and particle spin
+        ``w``, from the pair's angular momentum (a pair only)."""
         vt0, w0, w20 = self.start
-        return (
-            w20
-            - ((self.r + self.r2) * self.m * (self.tdot(y) - vt0) + self.I1 * (y[3] - w0)) / self.I2
-        )
+        return w20 - ((self.r + self.r2) * self.m * (vt - vt0) + self.I1 * (w - w0)) / self.I2
 
     def ring_spin(self, y) -> float:
         """The spin the ring and the rolling moments see: relative to the second sphere."""
