@@ -233,13 +233,20 @@ def _jkr_stuck(terms: dyn.Terms, p: ScaledParameters):
     return dyn.jkr_barrier(p) > 0.5
 
 
-def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
+def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None) -> dict:
     """The last stretch of a JKR contact, from the separation level ``mu (d_c + floor)`` down
     to the snap-off overlap ``n_c``, in closed form: the potential's change there is exact
     (``V`` is closed-form), the Hertzian damping's work is taken at the mean of the Hertzian
     force at the two ends and the crossing speed. At the snap-off the sphere leaves the
     contact, and the barrier ``V(n_c)`` (the elastic JKR loss, ``c_W (w^5 R^4/E^2)^(1/3)``) is
-    the ledger's ``loss_adhesion_damping``."""
+    the ledger's ``loss_adhesion_damping``.
+
+    ``xi``: the Mindlin spring's displacement at the separation level (held across the
+    stretch). Its normal force returns ``(k_t(n_sep) - k_t(n_c)) xi^2 / 2`` to the normal
+    motion (exact: the force is minus the gradient of the spring's energy); the contact's
+    radius does not vanish at the snap-off, so the spring still holds ``k_t(n_c) xi^2 / 2``
+    when the contact breaks: that energy is lost (``spring_lost``, in the ledger's
+    ``loss_friction``), as DEM codes drop the tangential history when a contact ends."""
     n_sep = dyn.separation(terms, p)
     n_c, a_c = dyn.jkr_snap_off(p)
     a_sep = dyn.jkr_contact_radius(terms, p, jnp.full_like(ndot, n_sep))
@@ -252,6 +259,11 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
     )
     damping = hertz * p.C_H * speed * width
     energy = ndot**2 - 2.0 * (climb + damping)
+    spring_lost = None
+    if xi is not None:
+        half_xi2 = 0.5 * xi * xi
+        energy = energy + 2.0 * half_xi2 * 8.0 * p.G_star * (a_sep - a_c)
+        spring_lost = half_xi2 * 8.0 * p.G_star * a_c
     shell = {"loss_hertz_damping": damping, "loss_adhesion_damping": barrier}
     shell["peak"] = jnp.zeros_like(ndot)
     shell["ok"] = energy > 0
@@ -266,19 +278,24 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot) -> dict:
     net = jnp.abs(adhesive - hertz * (1.0 + p.C_H * ndot)) * width
     shell["load_work"] = net if terms.friction_load == "net" else hertz * width
     shell["width"] = width
+    if spring_lost is not None:  # with the spring's tangential impulse across the stretch
+        shell["spring_lost"] = spring_lost
+        k_mean = 4.0 * p.G_star * (a_sep + a_c)
+        shell["spring_impulse"] = -k_mean * xi * shell["time"]
     return shell
 
 
-def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot, spring=None) -> dict:
+def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot, spring=None, xi=None) -> dict:
     """The separation through the shell below the floor, in closed form (see ``_shell_entry``).
 
     ``ndot`` (< 0) is the normal velocity at the floor; returns the velocity at ``n = 0`` and
     ``ok = False`` where the normal energy runs out inside the shell (then a capture).
     ``spring``: the Mindlin spring's energy at the floor, which its normal force returns to the
-    normal motion in the shell (its tangential impulse there, ``O(floor^2.5)``, is left out).
+    normal motion in the shell (its tangential impulse there, ``O(floor^2.5)``, is left out);
+    ``xi``: the spring's displacement, for JKR's stretch (:func:`_jkr_exit`).
     """
     if terms.jkr:
-        return _jkr_exit(terms, p, ndot)
+        return _jkr_exit(terms, p, ndot, xi)
     eps = terms.contact_floor
     sr = jnp.sqrt(p.radius)
     speed = jnp.abs(ndot)
@@ -403,8 +420,8 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
         entry = _shell_entry(terms, p, dtype)
         y0["n"] = jnp.asarray(floor, dtype)
         y0["ndot"] = entry["ndot"]
-    if terms.mindlin:
-        y0["xi"] = _shell_spring(terms, p, y0, entry)
+    if terms.mindlin:  # (JKR: the solve starts at first touch, the spring unloaded)
+        y0["xi"] = jnp.zeros((), dtype) if terms.jkr else _shell_spring(terms, p, y0, entry)
     entry_friction = None
     if terms.tangential and not terms.mindlin and terms.jkr:
         entry_friction = {"loss_friction": jnp.zeros((), dtype)}
@@ -535,6 +552,27 @@ def _outputs(terms: dyn.Terms, prob: _Problem, speed, omega0, sol):
     return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
 
 
+def _jkr_spring_exit(terms: dyn.Terms, p: ScaledParameters, y: dict, exit_: dict, separated):
+    """The Mindlin spring across JKR's exit stretch (:func:`_jkr_exit`), in place: its
+    tangential impulse there, ``-k_t xi`` times the crossing time (left out, it was 3e-6 of the
+    speed off the reference in the spin), and what the snap-off drops, booked in
+    ``loss_friction`` so that the ledger closes exactly: the spring's energy left at ``n_c``
+    less the tangential kinetic energy its impulse gave."""
+    if not terms.tangential:
+        return
+    dv = jnp.where(separated, exit_["spring_impulse"], 0.0)
+    w = y["w"] if terms.rotation else jnp.zeros_like(dv)
+    gained = dv * dyn.slip(terms, p, y, w) + 0.5 * dv * dv / dyn.slip_mass(terms, p)
+    y["vt"] = y["vt"] + dv
+    if terms.rotation:
+        y["w"] = w - dyn.moment_arm(p) * dv / p.inertia
+        if terms.target:
+            y["w2"] = y["w2"] - p.arm2 * dv / p.inertia2
+    if "loss_friction" in y:
+        lost = exit_["spring_lost"] - gained
+        y["loss_friction"] = y["loss_friction"] + jnp.where(separated, lost, 0.0)
+
+
 def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     """The state at the end of the impact (the exit shell crossed in closed form after a
     rebound, the entry shell's contributions added), its time and its status code."""
@@ -546,7 +584,7 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     finite = jnp.all(jnp.stack([jnp.isfinite(v) for v in jax.tree_util.tree_leaves(y)]))
     event_hit = sol.result == diffrax.RESULTS.event_occurred
     spring = dyn.tangential_energy(terms, p, y) if terms.mindlin else None
-    exit_ = _shell_exit(terms, p, y["ndot"], spring)
+    exit_ = _shell_exit(terms, p, y["ndot"], spring, y["xi"] if terms.mindlin else None)
     if terms.adhesion:
         # At the event one of the two is ~0 and the other positive. A sphere whose normal
         # energy runs out inside the shell below the floor is captured too.
@@ -557,6 +595,8 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     else:
         captured = False
     separated = event_hit & ~captured
+    if terms.mindlin and terms.jkr:
+        _jkr_spring_exit(terms, p, y, exit_, separated)
     if terms.mindlin:  # the spring's energy went into the normal motion in the shell
         y["xi"] = jnp.where(separated, 0.0, y["xi"])
     if terms.tangential and not terms.mindlin:

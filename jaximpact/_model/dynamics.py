@@ -231,8 +231,24 @@ def mechanical_energy(terms: Terms, p: ScaledParameters, y):
 
 def tangential_energy(terms: Terms, p: ScaledParameters, y):
     """Energy of the Mindlin spring, ``k_t(n) xi^2 / 2``: the potential of both its forces."""
-    k_t = laws.mindlin_stiffness(y["n"], p.radius, p.G_star, terms.contact_floor)
+    k_t, _ = spring_stiffness(terms, p, y["n"])
     return 0.5 * k_t * y["xi"] ** 2
+
+
+def spring_stiffness(terms: Terms, p: ScaledParameters, n):
+    """``(k_t, dk_t/dn)`` of the Mindlin spring, ``k_t = 8 G* a`` with the normal law's contact
+    radius: Hertz's ``sqrt(r n)`` (also DMT's), or JKR's, whose slope is that of the law as
+    integrated (the continuation below the separation level included), so that the spring's
+    normal force is exactly minus the gradient of its energy. JKR's ``da/dn`` grows like
+    ``(n - n_c)^-1/2`` toward the snap-off: the force is singular there but its work, the
+    change of ``k_t xi^2 / 2``, is finite (docs/physics.md, "Tangential compliance")."""
+    if terms.jkr:
+        return jax.jvp(
+            lambda n_: 8.0 * p.G_star * jkr_contact_radius(terms, p, n_), (n,), (jnp.ones_like(n),)
+        )
+    floor = terms.contact_floor
+    k_t = laws.mindlin_stiffness(n, p.radius, p.G_star, floor)
+    return k_t, laws.mindlin_stiffness_slope(n, p.radius, p.G_star, floor)
 
 
 def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w):
@@ -333,9 +349,7 @@ def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, spin, w, M):
     force (as the reference does). See docs/physics.md, "Tangential compliance".
     """
     n, ndot, xi = y["n"], y["ndot"], y["xi"]
-    floor = terms.contact_floor
-    k_t = laws.mindlin_stiffness(n, p.radius, p.G_star, floor)
-    dk_dn = laws.mindlin_stiffness_slope(n, p.radius, p.G_star, floor)
+    k_t, dk_dn = spring_stiffness(terms, p, n)
     f["F_U"] = -0.5 * dk_dn * xi * xi
     f["F_n"] = f["F_n"] + f["F_U"]
     F_t = -k_t * xi

@@ -400,11 +400,6 @@ class Scene(eqx.Module):
     target: Target | None = None
 
     def __check_init__(self):
-        if self.model.tangential == "mindlin" and self.model.normal == "jkr":
-            raise SceneError(
-                'model.tangential = "mindlin" is not available with model.normal = "jkr" yet '
-                "(docs/open_points.md)"
-            )
         if self.model.tangential == "mindlin":
             check_range(
                 "contact.G_star (needed by model.tangential = 'mindlin')",
@@ -433,10 +428,6 @@ class Scene(eqx.Module):
         else:
             w = c.w
             f0 = (c.w**2 * c.K * r / (2 * jnp.pi)) ** (1 / 3) if law == "brach_dunn" else 0.0
-        if law == "jkr" and self.model.tangential == "mindlin":
-            raise SceneError(
-                'model.normal = "jkr" does not combine with model.tangential = "mindlin" yet'
-            )
         return self.replace(
             contact={"f0": f0, "w": w if law != "brach_dunn" else 0.0}, model={"normal": law}
         )

@@ -8,6 +8,7 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from . import jkr
 from ._forces import contact_forces, hertz_scales, normal_potential
 from ._params import ImpactResult, Params
 from ._rigid import _Model
@@ -33,11 +34,27 @@ class _MindlinModel:
         self.rigid = _Model(p, vt0, w0)
         self.pair = self.rigid.pair
 
+    def contact_radius(self, n):
+        """Hertz's ``sqrt(r n)``, or JKR's stable branch down to the snap-off (0 outside)."""
+        p = self.p
+        if p.jkr:
+            if not n > p.separation_overlap:
+                return 0.0
+            return jkr.contact_radius(n, self.rc, 0.75 * p.K, p.w)
+        return math.sqrt(self.rc * n) if n > 0 else 0.0
+
     def stiffness(self, n):
-        return 8.0 * self.p.G_star * math.sqrt(self.rc * n) if n > 0 else 0.0
+        return 8.0 * self.p.G_star * self.contact_radius(n)
 
     def stiffness_slope(self, n):
-        return 4.0 * self.p.G_star * math.sqrt(self.rc / n) if n > 0 else 0.0
+        p = self.p
+        if p.jkr:  # 1 / (dn/da), dn/da = 2 a / r - sqrt(2 pi w / (E a)) / 2 (> 0 above n_c)
+            a = self.contact_radius(n)
+            if a <= 0:
+                return 0.0
+            dn_da = 2.0 * a / self.rc - 0.5 * math.sqrt(2.0 * math.pi * p.w / (0.75 * p.K * a))
+            return 8.0 * p.G_star / dn_da if dn_da > 0 else 0.0
+        return 4.0 * p.G_star * math.sqrt(self.rc / n) if n > 0 else 0.0
 
     def spin2(self, y):
         """The second sphere's spin (0 on the wall; the state holds the relative tangential
@@ -90,7 +107,8 @@ class _MindlinModel:
         """``dc/dt`` along the motion: closed form without adhesion, else a central difference
         along the flow (relative error ~1e-9; it only places the slip-to-stick event)."""
         p, n, ndot = self.p, y[0], y[1]
-        if n <= 0 or self.f == 0:
+        n_end = p.separation_overlap  # 0, or JKR's snap-off overlap
+        if n <= n_end or self.f == 0:
             return 0.0
         nddot = self.rhs(y, mode)[1]
         if not p.adhesion:
@@ -104,7 +122,7 @@ class _MindlinModel:
                 load_rate = sign * kr * (1.5 * math.sqrt(n) * ndot * g + n**1.5 * p.C_H * nddot)
             k = self.stiffness(n)
             return self.f * (load_rate - load * self.stiffness_slope(n) * ndot / k) / k
-        h = 1e-7 * n / max(abs(ndot), 1e-300)
+        h = 1e-7 * (n - n_end) / max(abs(ndot), 1e-300)
         d = np.array(self.rhs(y, mode))
         up, down = np.array(y, float) + h * d, np.array(y, float) - h * d
         return (self.cap(up) - self.cap(down)) / (2.0 * h)
@@ -114,6 +132,10 @@ class _MindlinModel:
 
     def normal_energy(self, y):
         return 0.5 * self.m * y[1] ** 2 + normal_potential(self.p, y[0])
+
+    def capture_energy(self, y):
+        """The normal energy left to climb to the separation (JKR: the snap-off's barrier)."""
+        return self.normal_energy(y) - self.p.jkr_barrier
 
     def kinetic_energy(self, y):
         """Of the tangential motion and the spins."""
@@ -163,19 +185,34 @@ def _simulate_mindlin(
     if t_max is None:
         t_max = 1000.0 * T
     n_eps = _N_EPS * L
-    t = n_eps / v_n
-    y = np.array([n_eps, v_n, v_t, w0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    # JKR: the contact starts at first touch with a finite radius (the spring unloaded) and
+    # ends n_eps above the snap-off overlap n_c < 0
+    n_c = p.separation_overlap
+    n0 = 0.0 if p.jkr else n_eps
+    t = n0 / v_n
+    y = np.array([n0, v_n, v_t, w0, 0.0, 0.0, 0.0, 0.0, 0.0])
     energy_in = 0.5 * m * v_n**2 + model.kinetic_energy(y)
     roll_time = 0.0 if model.slip(y) == 0 else math.nan
 
-    run = _MindlinRun(model, S, L, T, rtol, atol, method, detect_capture and p.adhesion, n_eps)
-    y, t, mode = run.integrate(y, t, t_max, roll_time, max_segments)
+    run = _MindlinRun(model, S, L, T, rtol, atol, method, detect_capture and p.adhesion, n_eps, n_c)
+    mode = _STICK
+    if detect_capture and p.jkr and model.capture_energy(y) < 0:
+        run.status, run.roll_time = "captured", roll_time  # below JKR's sticking speed
+    else:
+        y, t, mode = run.integrate(y, t, t_max, roll_time, max_segments)
 
     y[4] = model.xi(y, mode)
     contact_time = t
     if run.status == "rebound" and y[1] < 0:
-        contact_time += y[0] / -y[1]
+        contact_time += (y[0] - n_c) / -y[1]
     spring = model.spring_energy(y, _STICK)
+    energy_out = model.mechanical_energy(y, _STICK)
+    if run.status == "rebound" and p.jkr:
+        # The snap-off: the barrier's energy is lost (as in the rigid model), and so is the
+        # spring's, since JKR's contact radius does not vanish there (docs/physics.md).
+        energy_out -= p.jkr_barrier + spring
+        y[7] += p.jkr_barrier
+        spring = 0.0
     return ImpactResult(
         status=run.status,
         vn_out=float(-y[1]),
@@ -185,7 +222,7 @@ def _simulate_mindlin(
         roll_time=float(run.roll_time),
         max_overlap=float(run.max_overlap),
         energy_in=float(energy_in),
-        energy_out=float(model.mechanical_energy(y, _STICK)),
+        energy_out=float(energy_out),
         loss_hertz_damping=float(y[6]),
         loss_adhesion_damping=float(y[7]),
         loss_friction=float(-y[5] - spring),
@@ -201,12 +238,12 @@ class _MindlinRun:
     """The segment loop of the Mindlin model: stick and slip phases of the tangential spring,
     until a rebound, a capture or a failure."""
 
-    def __init__(self, model, S, L, T, rtol, atol, method, detect_capture, n_eps):
+    def __init__(self, model, S, L, T, rtol, atol, method, detect_capture, n_eps, n_c=0.0):
         self.model, self.S, self.L, self.T = model, S, L, T
         self.rtol, self.atol, self.method = rtol, atol, method
-        self.base = [(lambda y: y[0] - n_eps, True, -1, "rebound")]
+        self.base = [(lambda y: y[0] - n_c - n_eps, True, -1, "rebound")]
         if detect_capture:
-            self.base.append((model.normal_energy, True, -1, "captured"))
+            self.base.append((model.capture_energy, True, -1, "captured"))
         self.base.append((lambda y: y[1], False, -1, "turn"))
         self.base.append((model.slip, False, 0, "zero_slip"))
         self.kinks = model.kink_functions()

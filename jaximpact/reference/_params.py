@@ -55,8 +55,6 @@ class Params:
     def __post_init__(self):
         if self.normal not in NORMAL_LAWS:
             raise ValueError(f"normal must be one of {NORMAL_LAWS}")
-        if self.normal == "jkr" and self.tangential == "mindlin":
-            raise ValueError("tangential = 'mindlin' is not available with normal = 'jkr'")
         if self.tangential not in ("rigid", "mindlin"):
             raise ValueError("tangential must be 'rigid' or 'mindlin'")
         if self.tangential == "mindlin" and not self.G_star > 0:
