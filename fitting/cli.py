@@ -133,7 +133,8 @@ def _add_posterior_options(p) -> None:
         default=[],
         metavar="SCENE[=PARAMS]",
         help="also fit and sample each of these scenes (embedded name or TOML file) on the same "
-        "data with the same options, then compare all the models by PSIS-LOO (ArviZ); "
+        "data with the same options, then compare all the models by PSIS-LOO (ArviZ; exact "
+        "refits where its Pareto k exceeds 0.7, see --loo-refits); "
         "=PARAMS: that scene's own fitted parameters as a comma list (default: --params); "
         "a normal law (brach_dunn, dmt, jkr; a comma list) is the scene with that law, f0 and "
         "w swapped in the fitted names",

@@ -298,6 +298,34 @@ def test_leaving_out_an_observation_gives_the_posterior_of_the_rest():
     assert np.max(np.abs(cov_all @ A.T @ y - mean) / sd) > 3
 
 
+def test_a_noise_factor_whose_only_observation_is_left_out_follows_its_prior():
+    """Two noise groups, the second with one row: left out, its factor is still sampled (the
+    held-out term needs it at the refit's draws), from its log-uniform prior on [1e-3, 1e3]."""
+    from fitting._bayesian import posterior as _posterior
+    from fitting._bayesian.priors import priors_for
+
+    names = ("C_A", "f0")
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((9, 2))
+    y = A @ np.log([0.75, 300.0]) + rng.standard_normal(9)
+    groups = np.array([1] + [0] * 8)
+    cov = np.linalg.inv(A.T @ A)
+    post = _posterior._sample(
+        lambda u: jnp.asarray(A) @ u - jnp.asarray(y), names, cov @ A.T @ y, cov,
+        priors_for(names, None), groups, ("sigma_factor[a]", "sigma_factor[b]"), [0.0, 0.0],
+        likelihood="gaussian", nu=4.0, chains=4, draws=500, warmup=1, seed=0, jitter=0.5,
+        target_accept=0.9, progress=False, weight=_posterior._weights(9, [0]),
+    )  # fmt: skip
+    assert post.noise_draws.shape[-1] == 2
+    log_s = np.log(post.noise_draws[..., 1]).ravel()
+    # uniform on [-ln 1e3, ln 1e3]: mean 0, sd 2 ln(1e3) / sqrt(12) = 3.99 (ESS >= 400)
+    assert abs(np.mean(log_s)) < 5 * 3.99 / math.sqrt(400)
+    assert np.std(log_s) == pytest.approx(2 * math.log(1e3) / math.sqrt(12), rel=0.15)
+    assert np.max(log_s) > 5 and np.min(log_s) < -5
+    # the other group's factor is determined by its 8 rows (unit noise): near 1
+    assert 0.5 < np.median(post.noise_draws[..., 0]) < 2
+
+
 def test_leave_out_and_refit_options_are_checked(tmp_path, capsys):
     from fitting._bayesian.loo import MAX_REFITS
     from fitting._bayesian.posterior import _check_leave_out
