@@ -241,7 +241,7 @@ def test_exact_loo_refits_replace_the_terms_and_recompute_the_totals(monkeypatch
     )  # fmt: skip
     said = []
     out = fitting.exact_loo_refits(
-        psis, None, [3, 1], lambda i: Refit(i, converged=i != 3), 1000,
+        psis, [3, 1], lambda i: Refit(i, converged=i != 3), 1000,
         announce=lambda i, k, total: said.append((i, k, total)),
     )  # fmt: skip
     assert said == [(3, 1, 2), (1, 2, 2)]
@@ -263,9 +263,9 @@ def test_exact_loo_refits_replace_the_terms_and_recompute_the_totals(monkeypatch
     assert loo_module._rows_to_refit(psis.khat, 2) == [1, 3]
     assert loo_module._rows_to_refit(psis.khat, 0) == []
     with pytest.raises(fitting.FitError, match="must lie in"):
-        fitting.exact_loo_refits(psis, None, [5], lambda i: Refit(i))
+        fitting.exact_loo_refits(psis, [5], lambda i: Refit(i))
     with pytest.raises(fitting.FitError, match="left out"):
-        fitting.exact_loo_refits(psis, None, [1], lambda i: Refit(2))
+        fitting.exact_loo_refits(psis, [1], lambda i: Refit(2))
 
 
 def test_leaving_out_an_observation_gives_the_posterior_of_the_rest():

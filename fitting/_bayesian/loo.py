@@ -146,7 +146,7 @@ def loo(
             refit = lambda i: refit_without(result, i)  # noqa: E731
         if rows is None:
             rows = _rows_to_refit(khat, max_refits)
-        psis = exact_loo_refits(psis, result, rows, refit, max_draws, announce)
+        psis = exact_loo_refits(psis, rows, refit, max_draws, announce)
     psis.problems = _problems(psis)
     return psis
 
@@ -173,7 +173,6 @@ def refit_without(result: PosteriorResult, i: int, *, progress: bool = False) ->
 
 def exact_loo_refits(
     psis: LOO,
-    result: PosteriorResult,
     rows: Sequence[int],
     sample_without: Callable[[int], PosteriorResult],
     max_draws: int = 1000,
