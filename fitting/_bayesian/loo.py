@@ -65,7 +65,9 @@ def pointwise_log_likelihood(result: PosteriorResult, max_draws: int = 1000) -> 
     keep = np.unique(np.linspace(0, draws - 1, max(1, max_draws // chains)).astype(int))
     theta = result.draws[:, keep].reshape(-1, p)
     U = np.stack([to_unbounded(names, t) for t in theta])
-    residuals = np.asarray(engine_jit(jax.vmap(_model_residuals(objective, names)))(U))
+    residuals = np.asarray(
+        _residual_program(objective, names)(U, objective._value, objective._scale)
+    )
     noise = result.noise_draws[:, keep].reshape(len(theta), -1)
     factor = noise_factors(noise, result.noise_groups)
     scale = np.asarray(objective.scale, float) * factor  # in the observations' units
@@ -77,6 +79,25 @@ def pointwise_log_likelihood(result: PosteriorResult, max_draws: int = 1000) -> 
         const = float(gammaln((nu + 1) / 2) - gammaln(nu / 2)) - 0.5 * math.log(nu * math.pi)
         ll = const - 0.5 * (nu + 1) * np.log1p(x * x / nu) - np.log(scale)
     return ll.reshape(chains, keep.size, -1)
+
+
+#: Compiled residual programs, by the objective's fingerprint: a posterior's refits share
+#: one (each refit's objective is a new object with the same fingerprint).
+_PROGRAMS: dict = {}
+
+
+def _residual_program(objective, names):
+    """``(U (n, p), value, scale) -> residuals (n, observations)``, compiled once per design."""
+    key = (objective.fingerprint(), tuple(names))
+    if key not in _PROGRAMS:
+        if len(_PROGRAMS) >= 4:
+            _PROGRAMS.pop(next(iter(_PROGRAMS)))
+
+        def residuals(u, value, scale):
+            return _model_residuals(objective, names, value, scale)(u)
+
+        _PROGRAMS[key] = engine_jit(jax.vmap(residuals, in_axes=(0, None, None)))
+    return _PROGRAMS[key]
 
 
 @dataclass
