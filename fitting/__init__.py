@@ -20,8 +20,10 @@ import importlib
 _EXPORTS = {
     "LOO": "._bayesian.loo",
     "compare_models": "._bayesian.loo",
+    "exact_loo_refits": "._bayesian.loo",
     "loo": "._bayesian.loo",
     "pointwise_log_likelihood": "._bayesian.loo",
+    "refit_without": "._bayesian.loo",
     "PosteriorResult": "._bayesian.posterior",
     "posterior_predictive": "._bayesian.posterior",
     "sample_posterior": "._bayesian.posterior",

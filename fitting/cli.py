@@ -133,13 +133,23 @@ def _add_posterior_options(p) -> None:
         default=[],
         metavar="SCENE[=PARAMS]",
         help="also fit and sample each of these scenes (embedded name or TOML file) on the same "
-        "data with the same options, then compare all the models by PSIS-LOO (ArviZ); "
+        "data with the same options, then compare all the models by PSIS-LOO (ArviZ; exact "
+        "refits where its Pareto k exceeds 0.7, see --loo-refits); "
         "=PARAMS: that scene's own fitted parameters as a comma list (default: --params); "
         "a normal law (brach_dunn, dmt, jkr; a comma list) is the scene with that law, f0 and "
         "w swapped in the fitted names",
     )
     g.add_argument(
         "--compare-plot", metavar="FILE.png", help="each compared model's band against the data"
+    )
+    g.add_argument(
+        "--loo-refits",
+        type=int,
+        metavar="N",
+        help="with --compare: in each model, up to N observations (highest Pareto k first) "
+        "whose PSIS-LOO estimate is unreliable (k > 0.7) get their exact leave-one-out term: "
+        "the posterior sampled again without the observation, each refit costing about as much "
+        f"as the model's posterior (default {LOO_REFITS}; 0: PSIS-LOO only)",
     )
     g = p.add_argument_group("profile likelihood")
     g.add_argument(
@@ -230,6 +240,8 @@ EMBEDDED_DATA = {"kharaz2001": _kharaz2001, "kharaz2001_mindlin": _kharaz2001}
 
 #: Exit status of a fit that ran but whose result cannot be trusted (see the description).
 EXIT_NOT_CONVERGED = 3
+#: ``--loo-refits``'s default: fitting._bayesian.loo.MAX_REFITS (not imported here: JAX).
+LOO_REFITS = 10
 
 
 def cmd_fit(args) -> int:
@@ -384,6 +396,10 @@ def _check_fit_options(args, names, posterior_outputs) -> None:
             raise FitError("--compare needs --posterior (models are compared by their posteriors)")
     if args.compare_plot and not args.compare:
         raise FitError("--compare-plot needs --compare")
+    if args.loo_refits is not None and not args.compare:
+        raise FitError("--loo-refits needs --compare")
+    if args.loo_refits is not None and args.loo_refits < 0:
+        raise FitError(f"--loo-refits must be an integer >= 0, got {args.loo_refits}")
     for label, value, least in (
         ("--chains", args.chains, 1),
         ("--samples", args.samples, 4),
@@ -563,7 +579,7 @@ def _fit_compare(args, posteriors, alternatives, data_path, document, outputs, d
     """``--compare``: fit and sample each other model, compare all by PSIS-LOO (printed and
     in ``document["comparison"]``); returns the reasons for exit status 3 (a model whose fit
     or posterior did not converge; the comparison leaves out a model it could not sample)."""
-    from ._bayesian.loo import compare_models
+    from ._bayesian.loo import compare_models, refit_without
     from ._bayesian.report import (
         add_to_result_dict,
         comparison_summary,
@@ -590,7 +606,21 @@ def _fit_compare(args, posteriors, alternatives, data_path, document, outputs, d
         if not post.converged:
             failed.append(f"{label}: posterior {post.message}")
         posteriors[label] = post
-    rows = compare_models(posteriors) if len(posteriors) > 1 else []
+    refits = LOO_REFITS if args.loo_refits is None else args.loo_refits
+    progress = not args.no_progress
+
+    def refit(name, i):
+        return refit_without(posteriors[name], i, progress=progress)
+
+    def announce(name, i, n, total):
+        print(f"refitting model {name} without observation {i + 1} ({n} of {total}): its "
+              "exact leave-one-out term (PSIS's Pareto k above 0.7)", file=sys.stderr)  # fmt: skip
+
+    rows = []
+    if len(posteriors) > 1:
+        rows = compare_models(
+            posteriors, refit=refit if refits else False, max_refits=refits, announce=announce
+        )
     if rows:
         print("\n" + comparison_summary(rows))
     else:

@@ -317,23 +317,26 @@ def _unit(name: str) -> str:
 
 def comparison_summary(rows: list[dict]) -> str:
     """The table of :func:`fitting.compare_models`'s rows (best first), with each model's
-    PSIS-LOO problems below it."""
+    PSIS-LOO problems below it: ``exact``, the observations refitted exactly; ``k>0.7``, those
+    whose estimate is still unreliable (Pareto k above 0.7 and not refitted, or a refit that
+    did not converge)."""
     lines = [
         "model comparison by PSIS-LOO (elpd: expected log predictive density of a new "
         "observation; higher is better)",
         f"  {'model':28s} {'elpd_loo':>10s} {'se':>7s} {'elpd_diff':>10s} {'se_diff':>8s} "
-        f"{'p_loo':>6s} {'max k':>6s}",
+        f"{'p_loo':>6s} {'max k':>6s} {'exact':>5s} {'k>0.7':>5s}",
     ]
     for r in rows:
         lines.append(
             f"  {r['name'][:28]:28s} {r['elpd']:10.2f} {r['se']:7.2f} {r['elpd_diff']:10.2f} "
-            f"{r['se_diff']:8.2f} {r['p_loo']:6.2f} {r['max_khat']:6.2f}"
+            f"{r['se_diff']:8.2f} {r['p_loo']:6.2f} {r['max_khat']:6.2f} "
+            f"{r.get('refitted', 0):5d} {_unreliable(r):5d}"
         )
     lines += [f"  {r['name']}: {p}" for r in rows for p in r["problems"]]
     best, *others = rows
     ahead = [r for r in others if r["elpd_diff"] < -2.0 * r["se_diff"]]
     # A lead that rests in part on unreliable leave-one-out terms says so.
-    clear = [r["name"] for r in ahead if not (best["problems"] or r["problems"])]
+    clear = [r["name"] for r in ahead if not (_unreliable(best) or _unreliable(r))]
     flagged = [r["name"] for r in ahead if r["name"] not in clear]
     close = [r["name"] for r in others if r not in ahead]
     if clear:
@@ -350,6 +353,12 @@ def comparison_summary(rows: list[dict]) -> str:
         lines.append(f"  {best['name']} and {', '.join(close)}: within 2 standard errors of "
                      "the difference (the data do not tell them apart)")  # fmt: skip
     return "\n".join(lines)
+
+
+def _unreliable(row: dict) -> int:
+    """A comparison row's unreliable leave-one-out terms (rows without the count: one if it
+    lists any problem)."""
+    return int(row.get("unreliable", 1 if row["problems"] else 0))
 
 
 def plot_comparison(path, results: dict[str, PosteriorResult], n: int = 200) -> None:
