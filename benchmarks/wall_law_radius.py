@@ -1,7 +1,8 @@
 """The wall law across a radius range: its radius nodes, build cost and error between nodes.
 
-Run: ``python benchmarks/wall_law_radius.py [--radius LO HI] [--points N] [--angles SPEC]``
-(Table 1 scene, default 1-100 um and the default angle grid: about 15-30 minutes on 2 cores).
+Run: ``python benchmarks/wall_law_radius.py [--radius LO HI] [--points N] [--angles SPEC]
+[--layout aligned|grid]`` (Table 1 scene, default 1-100 um and the default angle grid: about 5
+minutes on 2 cores with the kink-aligned layout, 15-30 with ``--layout grid``).
 Runs as ``jaximpact wall-law`` does (``ji.use_all_cpu_cores()``: one XLA device per core, loop
 kernels). Prints the figures of BENCHMARKS.md's "Wall law across radius" and writes them to
 ``benchmarks/results/wall_law_radius.json``.
@@ -121,8 +122,11 @@ def main() -> None:
     ap.add_argument("--radius", nargs=2, type=float, default=(1e-6, 100e-6), metavar=("LO", "HI"))
     ap.add_argument("--angles", default=None, help="angles, e.g. 0:85:18 (default the grid's)")
     ap.add_argument("--points", type=int, default=2000)
-    ap.add_argument("--out", default=str(HERE / "results" / "wall_law_radius.json"))
+    ap.add_argument("--layout", choices=("aligned", "grid"), default="aligned")
+    ap.add_argument("--out", default=None, help="default results/wall_law_radius[_aligned].json")
     args = ap.parse_args()
+    name = "wall_law_radius.json" if args.layout == "grid" else "wall_law_radius_aligned.json"
+    args.out = args.out or str(HERE / "results" / name)
     info = machine()
     scene = ji.table1_scene()
     angles = None
@@ -131,10 +135,13 @@ def main() -> None:
         angles = np.linspace(float(lo), float(hi), int(num))
     start = time.perf_counter()
     law = wall_law(
-        scene, radius=args.radius, angle_deg=angles,
+        scene, radius=args.radius, angle_deg=angles, layout=args.layout,
         progress=lambda m: print(f"  [{time.perf_counter() - start:7.1f} s] {m}", flush=True),
     )  # fmt: skip
     build = time.perf_counter() - start
+    from jaximpact.wall_law import c_header
+
+    header_bytes = len(c_header(law, "table1").encode())
     R, A, W, X = law.shape
     report = law.radius_report
     t = time.perf_counter()
@@ -144,7 +151,10 @@ def main() -> None:
     result = {
         "measured": measured_line(info, COMMAND),
         "radius_range": list(args.radius),
+        "layout": args.layout,
         "shape": [R, A, W, X],
+        "capture_angles": int(law.angle_deg.size),
+        "c_header_bytes": header_bytes,
         "build_seconds": build,
         "impacts": int(law.impacts),
         "stick_radii": int(law.stick.all(axis=(1, 2)).sum()),

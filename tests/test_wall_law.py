@@ -539,7 +539,7 @@ def wide_law(scene):
         mp.setattr(_table, "MIN_BATCH_LANES", 1)
         return wall_law(
             scene, radius=WIDE, angle_deg=ANGLES, omega0=SPINS, speed_ratio=RATIOS,
-            capture_tol=WIDE_TOL, refine_tol=1.0,
+            capture_tol=WIDE_TOL, refine_tol=1.0, layout="grid",
         )  # fmt: skip
 
 
@@ -674,7 +674,7 @@ def test_new_nodes_are_filled_only_where_the_rows_interpolate_within_the_toleran
         mp.setattr(_table, "MIN_BATCH_LANES", 1)
         mp.setattr(_table._Context, "lanes", recording)
         law = wall_law(
-            scene, radius=(15e-6, 45e-6), angle_deg=first_angles,
+            scene, radius=(15e-6, 45e-6), angle_deg=first_angles, layout="grid",
             omega0=(0.0,), speed_ratio=RATIOS, capture_tol=5e-3, refine_tol=tol,
         )  # fmt: skip
     new_cells = law.radius_report["new_cells"]
@@ -733,7 +733,7 @@ def test_two_decade_radius_table_against_simulate(scene):
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(_table, "MIN_BATCH_LANES", 256)
-        law = wall_law(scene, radius=(1e-6, 100e-6), angle_deg=(0.0, 60.0))
+        law = wall_law(scene, radius=(1e-6, 100e-6), angle_deg=(0.0, 60.0), layout="grid")
     assert law.stick[0].all() and not law.stick[-1].any()
     bands = law.radius_report["unresolved"]
     rng = np.random.default_rng(7)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._table import WallLaw
+from ._table import KINK_MIN_DEG, WallLaw
 
 __all__ = ["c_header", "write_code"]
 
@@ -58,7 +58,8 @@ def _version() -> str:
 
 def c_header(law: WallLaw, scene_name: str = "") -> str:
     """The text of ``jaximpact_wall_law.h`` for ``law``."""
-    R, A, W, X = law.shape
+    R, U, W, X = law.shape
+    A = law.angle_deg.size
     capture = law.speed_axis == "capture_ratio"
     reference = law.reference_table
     g_note = (
@@ -73,6 +74,14 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
         if capture
         else "speed in m/s (the scene has no adhesion: nothing sticks)"
     )
+    axis2 = "aligned angle coordinate" if law.aligned else "angle"
+    aligned_note = (
+        f"; the results on {U} nodes of the kink-aligned angle coordinate\n   (angle / theta* "
+        "below the angle theta*(radius, spin, speed) under which the sphere reaches\n   "
+        "rolling, 1 + (angle - theta*) / (top angle - theta*) above it) instead of the angles"
+        if law.aligned
+        else ""
+    )
     parts = [
         f"""/* {HEADER_NAME}: a wall law tabulated by jaximpact {_version()} (Brach-Dunn-Cheng
    impact model) from the scene {scene_name or "(given in Python)"}. Generated: do not edit.
@@ -82,7 +91,7 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
    rebound velocities and spin, by multilinear interpolation of the table below; and
    jaximpact_capture_speed() gives the interpolated capture speed.
 
-   Table: {R} radius x {A} angle x {W} spin x {X} speed nodes.
+   Table: {R} radius x {A} angle x {W} spin x {X} speed nodes{aligned_note}.
    Speed axis: {axis}.
    Interpolation: log(radius), angle (deg), spin (rad/s) linear; speed in
    u = {"asinh(sqrt(x - 1))" if capture else "x^0.2"}; outside the table the nearest edge (flagged
@@ -108,6 +117,10 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 #define JAXIMPACT_WL_NA {A}
 #define JAXIMPACT_WL_NW {W}
 #define JAXIMPACT_WL_NX {X}
+/* 1: the results are on the kink-aligned angle coordinate (JAXIMPACT_WL_NU nodes) */
+#define JAXIMPACT_WL_ALIGNED {1 if law.aligned else 0}
+#define JAXIMPACT_WL_NU {U}
+#define JAXIMPACT_WL_KINK_MIN_DEG {KINK_MIN_DEG!r}
 /* 1: the speed axis is the speed over the capture speed; 0: the speed in m/s */
 #define JAXIMPACT_WL_CAPTURE_RATIO {1 if capture else 0}
 /* the sphere's density the table was made for, kg/m^3 */
@@ -127,11 +140,19 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
             else "/* reference speed (1 m/s) [radius][angle][spin] */\n"
         )
         + _array("jaximpact_wl_reference", reference),
-        "/* u of each row's valid top speed [radius][angle][spin] */\n"
+        (
+            "/* nodes of the kink-aligned angle coordinate */\n"
+            + _array("jaximpact_wl_kink_u", law.kink_u)
+            + "/* theta*, deg [radius][spin][speed] */\n"
+            + _array("jaximpact_wl_theta_star", law.theta_star)
+            if law.aligned
+            else ""
+        ),
+        f"/* u of each row's valid top speed [radius][{axis2}][spin] */\n"
         + _array("jaximpact_wl_u_top", law.u_top),
         "/* 1: the row sticks again above its top; 0: its top is the speed range's */\n"
         + _array("jaximpact_wl_captured_above_top", law.captured_above_top),
-        "/* vn_out / vn [radius][angle][spin][speed] */\n"
+        f"/* vn_out / vn [radius][{axis2}][spin][speed] */\n"
         + _array("jaximpact_wl_cor_n", law.cor_n),
         "/* vt_out / speed */\n" + _array("jaximpact_wl_vt_ratio", law.vt_ratio),
         "/* omega_out radius / speed */\n" + _array("jaximpact_wl_spin_ratio", law.spin_ratio),

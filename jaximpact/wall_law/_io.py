@@ -56,6 +56,14 @@ UNCERTAINTY = {
     "cor_n_q05": ("1", "5 % quantile of cor_n over the draws that rebound"),
     "cor_n_q95": ("1", "95 % quantile of cor_n over the draws that rebound"),
 }
+KINK_U_ABOUT = (
+    "kink-aligned angle coordinate: angle / theta_star below theta_star, 1 + (angle - "
+    "theta_star) / (top angle - theta_star) above it"
+)
+THETA_STAR_ABOUT = (
+    "incidence angle below which the sphere reaches rolling before it leaves the wall (the "
+    "kink of the tangential results); the top angle where it rolls at every angle"
+)
 COORDS = {
     "radius": ("m", "sphere radius"),
     "angle_deg": ("deg", "incidence angle from the surface normal"),
@@ -78,12 +86,24 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
 
     xr = _xarray()
     dims3 = ("radius", "angle_deg", "omega0")
-    dims4 = dims3 + ("speed_ratio",)
+    # the aligned layout's rows and cells are on the aligned angle coordinate
+    rows3 = ("radius", "kink_u", "omega0") if law.aligned else dims3
+    dims4 = rows3 + ("speed_ratio",)
     coords = {
         k: (k, np.asarray(getattr(law, k), dtype=float), {"units": u, "long_name": d})
         for k, (u, d) in COORDS.items()
     }
     data = {}
+    if law.aligned:
+        coords["kink_u"] = ("kink_u", law.kink_u, {"units": "1", "long_name": KINK_U_ABOUT})
+        data["theta_star"] = (
+            ("radius", "omega0", "speed_ratio"), law.theta_star,
+            {"units": "deg", "long_name": THETA_STAR_ABOUT},
+        )  # fmt: skip
+        data["cell_angle_deg"] = (
+            dims4, np.asarray(law.cell_angle_deg),
+            {"units": "deg", "long_name": "incidence angle of the cell"},
+        )  # fmt: skip
     for name, (nd, unit, about) in VARIABLES.items():
         value = np.asarray(getattr(law, name))
         attrs = {"units": unit, "long_name": about}
@@ -97,7 +117,8 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
             attrs["flag_values"] = np.array([-1, 0, 1], dtype=np.int32)
             attrs["flag_meanings"] = "not_simulated rebound captured"
             value = value.astype(np.int32)
-        data[name] = (dims3 if nd == 3 else dims4, value, attrs)
+        rows = rows3 if name in ("top_ratio", "captured_above_top") else dims3
+        data[name] = (rows if nd == 3 else dims4, value, attrs)
     for name, (unit, about) in UNCERTAINTY.items():
         if name in law.uncertainty:
             data[name] = (dims4, law.uncertainty[name], {"units": unit, "long_name": about})
@@ -111,7 +132,15 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
             if law.speed_axis == "capture_ratio"
             else "linear in speed_ratio**0.2"
         ),
-        "interpolation": "multilinear: log(radius), angle_deg, omega0 and the speed coordinate",
+        "interpolation": (
+            "theta_star multilinear in log(radius), omega0 and the speed coordinate; the "
+            "results multilinear in log(radius), kink_u (of the query's angle at that "
+            "theta_star), omega0 and the speed coordinate; the capture speed in log(radius), "
+            "angle_deg and omega0"
+            if law.aligned
+            else "multilinear: log(radius), angle_deg, omega0 and the speed coordinate"
+        ),
+        "layout": "aligned" if law.aligned else "grid",
         "build_seconds": float(law.seconds),
         "impacts_simulated": int(law.impacts),
         "posterior_draws": int(law.uncertainty.get("draws", 0)),
@@ -146,6 +175,19 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
             f"interpolated (estimated miss below {FILL_SHARE:g} x refine_tol)"
             for stage, (sim, total) in report["new_cells"].items()
         )
+    if "results_tol" in report:
+        attrs["radius_results_tol"] = (
+            f"{report['results_tol']:g} (radius intervals split where the table missed simulate "
+            "by more at the interval's midpoint, on its aligned nodes)"
+        )
+        attrs["radius_results_checked"] = int(report["checked_radii"])
+        attrs["radius_results_unresolved_intervals"] = (
+            "; ".join(
+                f"{lo:.6g}-{hi:.6g} m (missed by {miss:.3g})"
+                for lo, hi, miss in report["results_unresolved"]
+            )
+            or "none"
+        )
     attrs["capture_speeds_not_converged"] = int(report.get("not_converged", 0))
     attrs.update({f"scene.{k}": v for k, v in law.scene.items()})
     return xr.Dataset(data, coords=coords, attrs=attrs)
@@ -166,11 +208,18 @@ def write_netcdf(path, law: WallLaw, scene_name: str = "") -> None:
 
 def long_columns(law: WallLaw) -> dict:
     """One row per cell: the coordinates, then the results (numpy columns)."""
-    R, A, W, X = law.shape
-    grid = np.meshgrid(law.radius, law.angle_deg, law.omega0, law.speed_ratio, indexing="ij")
+    second = law.kink_u if law.aligned else law.angle_deg
+    grid = np.meshgrid(law.radius, second, law.omega0, law.speed_ratio, indexing="ij")
     cols = {k: g.ravel() for k, g in zip(COORDS, grid, strict=True)}
+    cols["angle_deg"] = np.asarray(law.cell_angle_deg).ravel()
+    if law.aligned:
+        cols["kink_u"] = grid[1].ravel()
     cols["speed"] = law.speed.ravel()
-    cols["capture_speed"] = np.broadcast_to(law.capture_speed[..., None], law.shape).ravel()
+    if law.aligned:  # the capture speed the table interpolates at the cell's angle
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cols["capture_speed"] = cols["speed"] / cols["speed_ratio"]
+    else:
+        cols["capture_speed"] = np.broadcast_to(law.capture_speed[..., None], law.shape).ravel()
     cols["status"] = np.array([STATUS_TEXT.get(int(s), "failed") for s in law.status.ravel()])
     for name in ("cor_n", "cor_t", "vt_out", "omega_out", "rebound_angle_deg"):
         cols[name] = np.asarray(getattr(law, name), dtype=float).ravel()

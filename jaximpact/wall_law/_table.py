@@ -26,6 +26,12 @@ interpolated capture speed rises to infinity instead of jumping. Radius nodes ar
 (bisection in ``log r``) until the capture speed at every interval's midpoint is within
 ``capture_tol`` of its interpolation.
 
+Layouts: this module's tensor product of angles (``layout="grid"``), described here, or the
+kink-aligned layout of :mod:`._aligned` (``layout="aligned"``, the default for a radius range
+of an adhesive scene), whose results are on an angle coordinate that follows the onset of
+rolling (``theta_star``, ``kink_u``); the capture speed, the speed axis, the rows' tops and
+the stick rows are the same in both.
+
 Refinement: radius and angle intervals are split where linear interpolation of the results
 would miss by more than ``refine_tol`` (an estimate from second differences). The table is a
 tensor product (the generated C code reads one), so a new node gets a cell at every radius
@@ -80,6 +86,8 @@ NOT_SIMULATED = -1
 #: errors 2.2e-4, 3.4e-4 and 8.1e-4 (with 177 more speed nodes), against 3.9e-4, 2.0e-3 and
 #: 4.8e-3 without the speed pass (BENCHMARKS.md, "Wall law").
 SPEED_TOL = 1e-3
+#: Default ``refine_tol`` of the tensor-product layout.
+REFINE_TOL = 2e-4
 #: Radius nodes: at most this many bisections of the given intervals, and none narrower than
 #: RADIUS_MIN_STEP in log r (0.1 % of the radius).
 RADIUS_LEVELS = 12
@@ -137,12 +145,32 @@ class WallLaw:
     top_ratio: np.ndarray | None = None
     captured_above_top: np.ndarray | None = None
     radius_report: dict = field(default_factory=dict)
+    # The kink-aligned layout (``layout="aligned"``, :mod:`._aligned`): the angle ``theta*``
+    # ``(radius, spin, speed)`` below which the sphere reaches rolling before it leaves, and
+    # the nodes of the aligned angle coordinate (:func:`kink_coordinate`), which then index
+    # the results' second axis (and ``top_ratio``'s) instead of ``angle_deg``; the capture
+    # speed stays on ``angle_deg``. ``None``: the tensor-product layout.
+    theta_star: np.ndarray | None = None
+    kink_u: np.ndarray | None = None
 
     def __post_init__(self):
         if self.top_ratio is None:
             self.top_ratio = np.full(self.capture_speed.shape, float(self.speed_ratio[-1]))
         if self.captured_above_top is None:
             self.captured_above_top = np.zeros(self.capture_speed.shape)
+
+    @property
+    def aligned(self) -> bool:
+        """The kink-aligned layout (results against :func:`kink_coordinate`)."""
+        return self.theta_star is not None
+
+    @property
+    def cell_angle_deg(self) -> np.ndarray:
+        """``(radius, angle or u, spin, speed)``: the incidence angle of each result cell."""
+        if not self.aligned:
+            return np.broadcast_to(self.angle_deg[None, :, None, None], self.shape)
+        star = self.theta_star[:, None, :, :]
+        return kink_angle(self.kink_u[None, :, None, None], star, self.angle_deg[-1])
 
     @property
     def stick(self) -> np.ndarray:
@@ -172,7 +200,7 @@ class WallLaw:
 
     @property
     def cor_t(self) -> np.ndarray:
-        sin = np.sin(np.radians(self.angle_deg))[None, :, None, None]
+        sin = np.sin(np.radians(self.cell_angle_deg))
         with np.errstate(invalid="ignore", divide="ignore"):
             return self._rebounds(np.where(sin > 0, self.vt_ratio / sin, np.nan))
 
@@ -188,7 +216,7 @@ class WallLaw:
 
     @property
     def rebound_angle_deg(self) -> np.ndarray:
-        cos = np.cos(np.radians(self.angle_deg))[None, :, None, None]
+        cos = np.cos(np.radians(self.cell_angle_deg))
         with np.errstate(invalid="ignore"):
             vn = self.cor_n * self.speed * cos
             out = np.degrees(np.arctan2(self.vt_out, vn))
@@ -253,6 +281,9 @@ class WallLaw:
         u = self.u_of(x)
         ix, wx, c = _cell(u_nodes, u)
         clamped |= c & ~captured
+        if self.aligned:  # the results' angle axis: the aligned coordinate at this theta*
+            star = _multilinear(self.theta_star, (ir, iw, ix), (wr, ww, wx))
+            ia, wa, _ = _cell(self.kink_u, kink_coordinate(angle, star, self.angle_deg[-1]))
         # above the row's valid top: captured where the rows stick again there, else the
         # row's last values (the speed range's top); flagged as clamped either way
         u_top = _multilinear(self.u_top, (ir, ia, iw), (wr, wa, ww))
@@ -272,6 +303,29 @@ class WallLaw:
         omega_out = np.where(dead, 0.0, out["spin_ratio"] * speed / radius * sign)
         code = captured.astype(int) | (clamped.astype(int) << 1) | ((~valid).astype(int) << 2)
         return code, vn_out, vt_out, omega_out
+
+
+#: ``theta*`` is used no lower than this (deg) in the aligned coordinate: where the sphere
+#: slides through at every angle (no friction, or spin) the coordinate stays defined.
+KINK_MIN_DEG = 0.5
+
+
+def kink_coordinate(theta, theta_star, top):
+    """The aligned angle coordinate (deg in, dimensionless out): ``theta / theta*`` below the
+    rolling kink ``theta*``, ``1 + (theta - theta*) / (top - theta*)`` above it (``top``: the
+    table's largest angle), so that the kink is the node ``u = 1`` at every (radius, spin,
+    speed). The generated C function computes the same."""
+    theta = np.asarray(theta, dtype=float)
+    star = np.clip(theta_star, KINK_MIN_DEG, top)
+    above = np.maximum(top - star, 1e-9)
+    return np.where(theta <= star, theta / star, 1.0 + (theta - star) / above)
+
+
+def kink_angle(u, theta_star, top):
+    """The angle (deg) of the aligned coordinate ``u`` (the inverse of
+    :func:`kink_coordinate`)."""
+    star = np.clip(theta_star, KINK_MIN_DEG, top)
+    return np.where(u <= 1.0, u * star, star + (u - 1.0) * (top - star))
 
 
 def _u(x, capture_ratio: bool):
@@ -364,10 +418,11 @@ def wall_law(
     draws=None,
     max_draws: int = 20,
     refine: bool = True,
-    refine_tol: float = 2e-4,
+    refine_tol: float | None = None,
     speed_tol: float | bool | None = None,
     capture_tol: float = 1e-3,
     progress=None,
+    layout: str | None = None,
 ) -> WallLaw:
     """Tabulate the wall law of ``scene`` (module docstring).
 
@@ -385,8 +440,8 @@ def wall_law(
       the table then carries the capture probability and the spread of ``cor_n`` per cell.
     - `max_draws`: at most this many draws are used (evenly spaced).
     - `refine`: split the angle intervals where linear interpolation would miss by more than
-      `refine_tol` in ``cor_n``, ``cor_t`` or ``omega_out r / speed`` (the onset of rolling
-      puts a kink in them): a second pass on those angles only.
+      `refine_tol` (default 2e-4) in ``cor_n``, ``cor_t`` or ``omega_out r / speed`` (the
+      onset of rolling puts a kink in them): a second pass on those angles only.
     - `speed_tol`: split the speed intervals where linear interpolation (in the speed
       coordinate) of a row would miss by more than this (the onset of rolling crosses the
       speed axis at a ratio that moves with the angle); ``False``: not. Default (``None``):
@@ -395,6 +450,13 @@ def wall_law(
     - `capture_tol`: with several radii, the largest relative error of the interpolated
       capture speed at the midpoint (in log radius) of any two neighbouring radius nodes.
     - `progress`: a callable taking a one-line message, or None.
+    - `layout`: ``"grid"`` (results on the tensor product of the angles, refined where the
+      rows bend) or ``"aligned"`` (results against the kink-aligned angle coordinate,
+      :mod:`jaximpact.wall_law._aligned`: 45 angle nodes instead of hundreds; needs
+      adhesion; `refine_tol` is then the results' radius check, default 5e-4, and the angle
+      and speed passes are not run). Default (``None``): ``"aligned"`` for a radius range
+      of an adhesive scene (1-100 um in about 4 minutes on 2 cores instead of 26), else
+      ``"grid"``.
 
     **Returns:** a :class:`WallLaw`.
 
@@ -414,11 +476,38 @@ def wall_law(
         raise SceneError(f"speed_tol must be in (0, 1), False or None, got {speed_tol!r}")
     if not (isinstance(capture_tol, float | int) and 0 < capture_tol < 1):
         raise SceneError(f"capture_tol must be in (0, 1), got {capture_tol!r}")
+    if refine_tol is not None and not (isinstance(refine_tol, float | int) and refine_tol > 0):
+        raise SceneError(f"refine_tol must be > 0, got {refine_tol!r}")
+    if layout is None:
+        layout = "aligned" if adhesive and radius.size >= 2 else "grid"
+    if layout not in ("grid", "aligned"):
+        raise SceneError(f"layout must be 'grid' or 'aligned', got {layout!r}")
+    if layout == "aligned" and not adhesive:
+        raise SceneError(
+            "layout 'aligned' tabulates against the capture speed: the scene needs adhesion"
+        )
     ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
     report = {}
     if refine and adhesive and radius.size >= 2:
         radius, report = _radius_nodes(ctx, radius, angle, capture_tol, say)
         ctx.radius = radius
+    if layout == "aligned":
+        from ._aligned import ALIGNED_TOL, aligned_law
+
+        ctx.lane_batch(angle.size * omega.size)
+        tol = ALIGNED_TOL if refine_tol is None else refine_tol
+        law, aligned = aligned_law(ctx, scene, radius, angle, omega, x, refine, tol, say)
+        law.radius_report = {
+            **report,
+            **aligned,
+            "layout": "aligned",
+            "not_converged": ctx.not_converged,
+            "refine_tol": tol if refine else None,
+            "speed_tol": None,
+            "new_cells": {},
+        }
+        return _finished(law, simulate, scene, draws, max_draws, say, ctx.impacts, start)
+    refine_tol = REFINE_TOL if refine_tol is None else refine_tol
     rows = ctx.angles(angle, batch=None, stage="pass 1 (the grid's angles)")
     if refine and radius.size >= 3:
         rows, radius = _refined_radii(ctx, rows, radius, angle, refine_tol, say)
@@ -440,7 +529,11 @@ def wall_law(
     }
     if not refine:
         law.radius_report["refine_tol"] = None
-    impacts = ctx.impacts
+    return _finished(law, simulate, scene, draws, max_draws, say, ctx.impacts, start)
+
+
+def _finished(law, simulate, scene, draws, max_draws, say, impacts, start) -> WallLaw:
+    """``law`` with its posterior spread (``draws``), build time and impact count."""
     if draws is not None:
         law.uncertainty = _uncertainty(simulate, scene, law, draws, max_draws, say)
         impacts += law.uncertainty["draws"] * law.speed.size
@@ -828,14 +921,17 @@ class _Context:
             self.batch = radii * lanes_per_radius
         return self.batch
 
-    def impacts_at(self, r, a, w, speed, stage="") -> dict:
+    def impacts_at(self, r, a, w, speed, stage="", rolled=False) -> dict:
         """Impacts of lanes ``(r, a, w)`` at ``speed`` (flat; no capture search), in batches of
         the passes' lane count (one compiled program): ``status`` (:data:`NOT_SIMULATED` above
-        the speed range) and the outputs."""
+        the speed range) and the outputs; with ``rolled``, also whether the sphere reached
+        rolling before it left (``roll_time`` finite)."""
         n = r.size
         batch = self.batch or n
         status = np.full(n, NOT_SIMULATED)
         out = {k: np.full(n, np.nan) for k in OUTPUTS}
+        if rolled:
+            out["rolled"] = np.zeros(n, bool)
         run = speed <= SPEED_MAX
         idx_all = np.flatnonzero(run)
         batches = -(-idx_all.size // batch)
@@ -843,12 +939,14 @@ class _Context:
         for b, lo in enumerate(range(0, idx_all.size, batch)):
             idx = idx_all[lo : lo + batch]
             pad = np.concatenate([idx, np.full(batch - idx.size, idx[-1])])
-            if b % every == 0 or b == batches - 1:
+            if stage and (b % every == 0 or b == batches - 1):
                 self.say(f"{stage}, batch {b + 1} of {batches}: {idx.size} impacts")
             res = self.simulate(
                 scene_with(self.scene, self.params(r[pad])), speed[pad], a[pad], w[pad]
             )
             got = _table_outputs(res, r[pad], speed[pad])
+            if rolled:
+                got["rolled"] = np.isfinite(np.asarray(res.roll_time))
             m = idx.size
             status[idx] = got.pop("status")[:m]
             for name, v in got.items():
@@ -1199,7 +1297,7 @@ def _uncertainty(simulate, scene, law, draws, max_draws, say) -> dict:
     R, A, W, X = law.shape
     n = R * A * W
     r = np.broadcast_to(law.radius[:, None, None], (R, A, W)).reshape(-1)
-    ang = np.broadcast_to(law.angle_deg[None, :, None], (R, A, W)).reshape(-1)
+    ang = law.cell_angle_deg.reshape(n, X)  # (the aligned layout's differ along the speed)
     om = np.broadcast_to(law.omega0[None, None, :], (R, A, W)).reshape(-1)
     base = {k: float(v) for k, v in scene_parameters(scene).items()}
     speed = law.speed.reshape(n, X)
@@ -1219,7 +1317,7 @@ def _uncertainty(simulate, scene, law, draws, max_draws, say) -> dict:
         p["radius"] = r[row]
         for k, c in zip(names, columns, strict=True):
             p[k] = np.full(cell.size, c[j])
-        res = simulate(scene_with(scene, p), speed[row, column], ang[row], om[row])
+        res = simulate(scene_with(scene, p), speed[row, column], ang[row, column], om[row])
         st = np.asarray(res.status)
         failed = st >= 2
         if np.any(failed):

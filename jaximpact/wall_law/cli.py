@@ -130,6 +130,7 @@ def cmd_wall_law(args) -> int:
             speed_tol=args.speed_tol,
             capture_tol=args.capture_tol,
             progress=progress,
+            layout=args.layout,
         )
     except (WallLawError, SceneError) as err:
         if created and not any(directory.iterdir()):  # leave nothing behind
@@ -155,12 +156,13 @@ def _report(law, scene, scene_name, check) -> None:
     from ._check import compare_with_simulate, random_points
     from ._table import SPEED_MAX
 
-    R, A, W, X = law.shape
+    R, U, W, X = law.shape
+    A = law.angle_deg.size
     print(f"scene: {scene_name}")
-    print(
-        f"wall law: {R} radius x {A} angle x {W} spin x {X} speed nodes, "
-        f"{law.impacts} impacts simulated in {law.seconds:.1f} s"
-    )
+    nodes = f"{R} radius x {A} angle x {W} spin x {X} speed nodes"
+    if law.aligned:
+        nodes += f" (results on {U} nodes of the kink-aligned angle coordinate)"
+    print(f"wall law: {nodes}, {law.impacts} impacts simulated in {law.seconds:.1f} s")
     if law.speed_axis == "capture_ratio":
         vc = law.capture_speed[np.isfinite(law.capture_speed)]
         if vc.size:
@@ -186,6 +188,11 @@ def _report(law, scene, scene_name, check) -> None:
                     f"stick rows, or a capture speed not found), the widest {widest:.2%} of "
                     "the radius"
                 )
+        if "results_tol" in report:
+            print(
+                f"aligned results: {report['checked_radii']} radius midpoints checked against "
+                f"simulate (within {report['results_tol']:g} on the aligned nodes, or split)"
+            )
         for stage, (sim, total) in report.get("new_cells", {}).items():
             if total > sim:
                 print(
@@ -273,6 +280,14 @@ def add_wall_law_command(sub) -> None:
         default=0,
         metavar="N",
         help="compare the table with simulate at N random points and print the errors",
+    )
+    p.add_argument(
+        "--layout",
+        choices=("grid", "aligned"),
+        default=None,
+        help="grid: results on the angles, refined where they bend; aligned: on an angle "
+        "coordinate that follows the onset of rolling (45 angle nodes; needs adhesion). "
+        "Default: aligned for a radius range of a scene with adhesion, else grid",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=cmd_wall_law)
