@@ -139,6 +139,7 @@ def test_derivatives_match_exact_reference_all_inputs(moments):
     check_against_reference(moments, 4, inputs, f"slow-{moments}")
 
 
+@pytest.mark.slow  # about 25 s (a lambda program of its own and its forward-mode program)
 def test_strong_lambda_moment_values_and_derivatives_match_reference():
     """A constant-lambda scene whose moment stops the spin within the contact (lambda 6e-7
     N m on a 20 um sphere): at normal incidence without spin (the sphere rolls from the first

@@ -121,6 +121,21 @@ def test_files_say_the_layout(law, tmp_path):
     assert "#define JAXIMPACT_WL_ALIGNED 1" in header
 
 
+def test_posterior_draws_simulate_each_cell_at_its_angle(law, scene):
+    """Draws equal to the scene's own parameters reproduce the table: no capture where the
+    cell rebounds and ``cor_n_mean`` equal to ``cor_n`` (each cell simulated at its own
+    angle, which changes along the speed axis in this layout)."""
+    from jaximpact._engine.api import simulate
+    from jaximpact.wall_law._table import _uncertainty
+
+    f0 = float(scene.contact.f0)
+    out = _uncertainty(simulate, scene, law, {"f0": np.full(2, f0)}, 2, lambda m: None)
+    live = (law.status == 0) & (np.arange(RATIOS.size) > 0)
+    assert out["draws"] == 2 and out["cor_n_mean"].shape == law.shape
+    assert np.all(out["capture_probability"][live] == 0.0)
+    np.testing.assert_allclose(out["cor_n_mean"][live], law.cor_n[live], atol=1e-12)
+
+
 def test_refused_without_adhesion(scene):
     with pytest.raises(ji.SceneError, match="layout 'aligned'.*needs adhesion"):
         wall_law(scene.replace(contact={"f0": 0.0}), layout="aligned")
