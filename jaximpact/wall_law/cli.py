@@ -228,13 +228,25 @@ def _report(law, scene, scene_name, check) -> None:
     if check:
         pts = random_points(law, check, seed=0)
         c = compare_with_simulate(law, scene, pts)
-        agree = c["status_agree"] | c["near_capture"]
-        err = c["error"]
+        # outside the table (above a row's top, beyond an axis) the table says so: its
+        # answers there are the documented fallback, counted apart
+        flagged = (c["code"] & 2) == 2
+        near = np.abs(c["speed_ratio"] - 1.0) <= 5e-3
+        disagree = ~c["status_agree"] & ~near
+        # within 0.5 % of the capture speed the results change steeply with the speed ratio
+        # (cor_n like sqrt(x - 1)), so the capture speed's own tolerance dominates there
+        parts = []
+        for name, label in (("cor_n", "cor_n"), ("cor_t", "cor_t"), ("spin_ratio", "spin")):
+            e = c["error"][name][~flagged & ~near]
+            e = e[np.isfinite(e)]
+            if e.size:
+                parts.append(f"{label} {e.max():.2e} ({np.percentile(e, 99):.2e})")
         print(
-            f"check against simulate at {check} random points: statuses agree at "
-            f"{int(agree.sum())} (outside 0.1 % of the capture speed); largest errors: "
-            f"cor_n {np.nanmax(err['cor_n']):.2e}, cor_t {np.nanmax(err['cor_t']):.2e}, "
-            f"omega_out r/speed {np.nanmax(err['spin_ratio']):.2e}"
+            f"check against simulate at {check} random points: {int(flagged.sum())} flagged "
+            f"as clamped; stick/rebound disagreements beyond 0.5 % of the capture speed: "
+            f"{int((disagree & ~flagged).sum())} (and {int((disagree & flagged).sum())} "
+            f"flagged); errors of the other rebounds beyond 0.5 % of the capture speed, "
+            f"largest (99th percentile): " + ", ".join(parts)
         )
 
 
