@@ -41,6 +41,8 @@ from ._table import (
     _cell,
     _multilinear,
     _top,
+    capture_coordinate,
+    capture_from_coordinate,
     kink_angle,
     scene_attributes,
 )
@@ -71,20 +73,14 @@ class _CaptureRows:
 
     def __init__(self, radius, angle, omega, v_c):
         self.log_r, self.angle, self.omega = np.log(radius), angle, omega
-        normal = v_c * np.cos(np.radians(angle))[None, :, None]
-        with np.errstate(divide="ignore"):
-            self.g = np.where(np.isfinite(normal), normal ** (-0.25), 0.0)
+        self.g = capture_coordinate(v_c, angle)
 
     def at(self, r, theta, w):
         r, theta, w = np.broadcast_arrays(r, theta, w)
         ir, wr, _ = _cell(self.log_r, np.log(r))
         ia, wa, _ = _cell(self.angle, theta)
         iw, ww, _ = _cell(self.omega, w)
-        g = _multilinear(self.g, (ir, ia, iw), (wr, wa, ww))
-        g2 = g * g
-        with np.errstate(divide="ignore"):
-            normal = np.where(g > 0, 1.0 / np.where(g > 0, g2 * g2, 1.0), np.inf)
-        return normal / np.cos(np.radians(theta))
+        return capture_from_coordinate(_multilinear(self.g, (ir, ia, iw), (wr, wa, ww)), theta)
 
 
 def aligned_law(ctx, scene, radius, angle, omega, x, refine, tol, say) -> tuple:

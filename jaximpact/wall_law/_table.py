@@ -183,10 +183,7 @@ class WallLaw:
         ``(v_c cos(angle))^(-1/4)``, 0 on stick rows; else the reference speed."""
         if self.speed_axis != "capture_ratio":
             return np.asarray(self.reference_speed, dtype=float)
-        cos = np.cos(np.radians(self.angle_deg))[None, :, None]
-        normal = self.reference_speed * cos
-        with np.errstate(divide="ignore"):
-            return np.where(np.isfinite(normal), normal ** (-0.25), 0.0)
+        return capture_coordinate(self.reference_speed, self.angle_deg)
 
     @property
     def u_top(self) -> np.ndarray:
@@ -234,11 +231,7 @@ class WallLaw:
         where ``g`` is 0 (a stick row's cell: captured at every speed)."""
         if self.speed_axis != "capture_ratio":
             return _multilinear(self.reference_speed, idx, w)
-        g = _multilinear(self.reference_table, idx, w)
-        g2 = g * g
-        with np.errstate(divide="ignore"):
-            normal = np.where(g > 0, 1.0 / np.where(g > 0, g2 * g2, 1.0), np.inf)
-        return normal / np.cos(np.radians(angle))
+        return capture_from_coordinate(_multilinear(self.reference_table, idx, w), angle)
 
     def u_of(self, x):
         """The interpolation coordinate of the speed ratio (module docstring)."""
@@ -1118,7 +1111,7 @@ def _radius_nodes(ctx, radius, angle, tol, say):
     nodes = list(np.asarray(radius, dtype=float))
     say(f"radius nodes: capture speeds at {len(nodes)} radii")
     v_nodes = ctx.capture_speeds(np.asarray(nodes), angle)  # sets the batch of every pass
-    g = {r: _g(v, angle) for r, v in zip(nodes, v_nodes, strict=True)}
+    g = {r: capture_coordinate(v, angle) for r, v in zip(nodes, v_nodes, strict=True)}
     pending = list(zip(nodes[:-1], nodes[1:], strict=True))
     unresolved, checked = [], 0
     for level in range(RADIUS_LEVELS):
@@ -1130,7 +1123,7 @@ def _radius_nodes(ctx, radius, angle, tol, say):
         checked += mids.size
         split = []
         for (lo, hi), m, vm in zip(pending, mids, v_mid, strict=True):
-            g_mid = _g(vm, angle)
+            g_mid = capture_coordinate(vm, angle)
             w = (np.log(m) - np.log(lo)) / (np.log(hi) - np.log(lo))
             miss = _g_miss(g[lo] + w * (g[hi] - g[lo]), g_mid)
             if miss <= tol:
@@ -1151,11 +1144,21 @@ def _radius_nodes(ctx, radius, angle, tol, say):
     return nodes, report
 
 
-def _g(v_c, angle):
-    """The interpolated coordinate of capture speeds ``v_c (A, W)`` (module docstring)."""
+def capture_coordinate(v_c, angle):
+    """``g = (v_c cos(angle))^(-1/4)`` of capture speeds ``v_c (..., A, W)`` at the angles
+    ``angle (A,)`` (deg), 0 where ``v_c`` is infinite (module docstring)."""
     normal = v_c * np.cos(np.radians(angle))[:, None]
     with np.errstate(divide="ignore"):
         return np.where(np.isfinite(normal), normal ** (-0.25), 0.0)
+
+
+def capture_from_coordinate(g, angle):
+    """The capture speed of an interpolated ``g`` at ``angle`` (deg): ``g^-4 / cos(angle)``,
+    ``inf`` where ``g`` is 0 (captured at every speed)."""
+    g2 = g * g
+    with np.errstate(divide="ignore"):
+        normal = np.where(g > 0, 1.0 / np.where(g > 0, g2 * g2, 1.0), np.inf)
+    return normal / np.cos(np.radians(angle))
 
 
 def _g_miss(g_interp, g_true) -> float:
