@@ -142,6 +142,8 @@ def test_refused_without_adhesion(scene):
         wall_law(scene.replace(contact={"f0": 0.0}), layout="aligned")
     with pytest.raises(ji.SceneError, match="layout must be"):
         wall_law(scene, layout="tilted")
+    with pytest.raises(ji.SceneError, match="speed_tol.*grid layout"):
+        wall_law(scene, layout="aligned", speed_tol=1e-3)
 
 
 def _errors(law, scene, n, seed):

@@ -479,6 +479,8 @@ def wall_law(
         raise SceneError(
             "layout 'aligned' tabulates against the capture speed: the scene needs adhesion"
         )
+    if layout == "aligned" and speed_tol not in (None, False):
+        raise SceneError("speed_tol (--speed-tol) is the grid layout's speed pass, not aligned's")
     ctx = _Context(simulate, scene, base, radius, omega, x, adhesive, say)
     report = {}
     if refine and adhesive and radius.size >= 2:
