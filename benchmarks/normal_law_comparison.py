@@ -93,7 +93,7 @@ def one_set(law, seed, sigma, clean):
                 "wall_s": time.perf_counter() - t0,
                 "mean": {n: float(post.summary[n]["mean"]) for n in names},
             }
-    rows = fitting.compare_models(posteriors)
+    rows = fitting.compare_models(posteriors, refit=REFITS > 0, max_refits=max(REFITS, 1))
     return {
         "generated_by": law,
         "seed": seed,
@@ -102,8 +102,13 @@ def one_set(law, seed, sigma, clean):
         "elpd_diff": {r["name"]: r["elpd_diff"] for r in rows},
         "se_diff": {r["name"]: r["se_diff"] for r in rows},
         "max_khat": {r["name"]: r["max_khat"] for r in rows},
+        "refitted": {r["name"]: r.get("refitted", 0) for r in rows},
+        "unreliable": {r["name"]: r.get("unreliable", 0) for r in rows},
         "runs": runs,
     }
+
+
+REFITS = 0  # --refits
 
 
 def run(path, sets, sigma):
@@ -146,11 +151,18 @@ def report(paths):
         print(f"| {law} | {len(mine)} | {cells} | {clear_wins} |")
     unconverged = sum(not v["converged"] for r in rows for v in r["runs"].values())
     khat = sum(max(r["max_khat"].values()) > 0.7 for r in rows)
+    refitted = sum(sum(r.get("refitted", {}).values()) for r in rows)
+    unreliable = sum(max(r.get("unreliable", {"": 0}).values()) > 0 for r in rows)
     wall = np.median([v["wall_s"] for r in rows for v in r["runs"].values()])
     print(
         f"\n{len(rows)} data sets, {3 * len(rows)} posteriors ({unconverged} not converged), "
         f"{khat} data sets with a Pareto k above 0.7; median {wall:.1f} s per posterior"
     )
+    if refitted:
+        print(
+            f"exact leave-one-out refits: {refitted} terms; data sets with a term still "
+            f"unreliable (k > 0.7, not refitted or not converged): {unreliable}"
+        )
 
 
 def main(argv=None):
@@ -159,7 +171,13 @@ def main(argv=None):
     p.add_argument("--sigma", type=float, default=0.01)
     p.add_argument("--out", default="benchmarks/results/normal_law_comparison.jsonl")
     p.add_argument("--report", nargs="+", metavar="FILE")
+    p.add_argument(
+        "--refits", type=int, default=0,
+        help="exact leave-one-out refits of up to N observations with Pareto k > 0.7 per model",
+    )  # fmt: skip
     args = p.parse_args(argv)
+    global REFITS
+    REFITS = args.refits
     if args.report:
         report(args.report)
         return 0

@@ -12,12 +12,13 @@ openfoam`` (a ``deb-src`` line for Debian main is needed) into ``~/.cache/jaximp
 Run: ``python benchmarks/openfoam_wall_law.py [--scene table1] [--work DIR]``; 1-3 minutes
 on 2 cores (77 s idle on 2026-11-28: a table over 32-40 um, the kink-aligned layout, 42 s,
 wmake of the six cloud registrations 29 s, the cases seconds; the first run also builds
-wmake's tools and links the source's headers, seconds). 80 particles of four radii (32.5, 35.7 and 39.2 um
-inside the table's range, 50 um above it) at 5 speeds and 4 angles hit the floor. Exit
-status 0 when wmake printed no warning, every particle's velocity matches the wall law to
-1e-9 of its speed and its outcome (stuck or rebound) is the table's, the model counted every
-impact outside the table on the floor patch, and a second run with ``onClamped rebound``
-gives those the fallback coefficients; 1 otherwise; 2 when OpenFOAM or its source is missing.
+wmake's tools and links the source's headers, seconds). 80 particles of four radii (32.5,
+35.7 and 39.2 um inside the table's range, 50 um above it) at 5 speeds and 4 angles hit the
+floor. Exit status 0 when wmake printed no warning, every particle's velocity matches the
+wall law to 1e-9 of its speed and its outcome (stuck or rebound) is the table's, the model
+counted every impact outside the table on the floor patch, and a second run with
+``onClamped rebound`` gives those the fallback coefficients; 1 otherwise; 2 when OpenFOAM or
+its source is missing.
 """
 
 from __future__ import annotations
