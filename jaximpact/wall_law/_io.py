@@ -162,12 +162,8 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
     if "capture_tol" in report:
         attrs["radius_capture_tol"] = float(report["capture_tol"])
         attrs["radius_midpoints_checked"] = int(report["checked_midpoints"])
-        attrs["radius_unresolved_intervals"] = (
-            "; ".join(
-                f"{lo:.6g}-{hi:.6g} m (capture speed off by {miss:.3g})"
-                for lo, hi, miss in report["unresolved"]
-            )
-            or "none"
+        attrs["radius_unresolved_intervals"] = _intervals(
+            report["unresolved"], "capture speed off by"
         )
     if report.get("new_cells"):
         attrs["refined_cells"] = "; ".join(
@@ -181,16 +177,17 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
             "by more at the interval's midpoint, on its aligned nodes)"
         )
         attrs["radius_results_checked"] = int(report["checked_radii"])
-        attrs["radius_results_unresolved_intervals"] = (
-            "; ".join(
-                f"{lo:.6g}-{hi:.6g} m (missed by {miss:.3g})"
-                for lo, hi, miss in report["results_unresolved"]
-            )
-            or "none"
+        attrs["radius_results_unresolved_intervals"] = _intervals(
+            report["results_unresolved"], "missed by"
         )
     attrs["capture_speeds_not_converged"] = int(report.get("not_converged", 0))
     attrs.update({f"scene.{k}": v for k, v in law.scene.items()})
     return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _intervals(bands, what: str) -> str:
+    """Radius intervals ``(lo, hi, miss)`` as one attribute text ("none" when empty)."""
+    return "; ".join(f"{lo:.6g}-{hi:.6g} m ({what} {miss:.3g})" for lo, hi, miss in bands) or "none"
 
 
 def write_netcdf(path, law: WallLaw, scene_name: str = "") -> None:
