@@ -148,3 +148,46 @@ def test_loop_kernels_keep_results_batch_exact_and_accurate():
     assert out["reference"] < 1e-6
     assert out["jacobian_finite"] and out["jacobian"] <= 1e-12
     assert out["jacobian_vs_reference"] < 1e-3
+
+
+LAGGING_DEVICE_SCRIPT = """
+import jax, jax.numpy as jnp, numpy as np
+import jaximpact as ji
+from fitting._bayesian.posterior import over_devices
+jax.config.update("jax_enable_x64", True)
+scene = ji.table1_scene()
+speed = np.linspace(0.5, 3, 31)  # 31 impacts: padded to 32, cut back to 31 after the solve
+ji.simulate(scene, speed)  # compiled before the other device is kept busy
+log_density = over_devices(lambda X, d: jnp.sum(X * d, axis=1), "lagging-device-test", np.ones(2))
+rows = np.arange(14.0).reshape(7, 2)  # 7 rows: padded to 8 and cut back
+log_density(rows)
+busy = jax.jit(lambda a: jax.lax.fori_loop(0, 600, lambda i, x: jnp.tanh(x @ x), a))
+lagging = jax.device_put(jnp.eye(600) * 0.5, jax.local_devices()[1])
+for _ in range(2):  # the second device's queue holds about 2 s of work when each call starts
+    busy(lagging)
+    result = ji.simulate(scene, speed)
+    busy(lagging)
+    values = log_density(rows)
+print(result.cor_n.shape, float(result.cor_n[0]), values.tolist())
+"""
+
+
+def test_results_of_a_sharded_batch_need_no_collective():
+    """With two devices, one of them seconds behind the other (another computation in its
+    queue), ``simulate`` and the posterior's sharded log density finish: their sharded results
+    are cut to the batch on one device without a collective operation, which XLA's CPU runtime
+    aborts when one device waits for the other longer than its timeout (40 s by default, 1 s
+    here). Measured before the fix: the process aborted in ``simulate``."""
+    flags = (
+        "--xla_force_host_platform_device_count=2"
+        " --xla_cpu_collective_call_terminate_timeout_seconds=1"
+        " --xla_cpu_collective_call_warn_stuck_timeout_seconds=1"
+    )
+    env = {**os.environ, "XLA_FLAGS": flags}
+    proc = subprocess.run(
+        [sys.executable, "-c", LAGGING_DEVICE_SCRIPT],
+        env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split()[0] == "(31,)"
+    assert proc.stdout.strip().endswith("[1.0, 5.0, 9.0, 13.0, 17.0, 21.0, 25.0]")

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaximpact._engine.devices import compiler_options, engine_jit
+from jaximpact._engine.devices import compiler_options, engine_jit, gathered
 from jaximpact._io.cache import compiled_program, runtime_checks_as_nan
 
 from .._least_squares.fit import FitResult, fit
@@ -1123,7 +1123,8 @@ def over_devices(log_density, key: str, *data):
         if pad:
             X = jnp.concatenate([X, jnp.repeat(X[:1], pad, axis=0)])
         program = compiled(tuple(X.shape), X.dtype)
-        return program(jax.device_put(X, rows), *data)[:n]
+        out = program(jax.device_put(X, rows), *data)
+        return (gathered(out) if len(devices) > 1 else out)[:n]
 
     return call
 

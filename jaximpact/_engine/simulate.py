@@ -24,7 +24,7 @@ from .._model.scene import (
 )
 from .._model.units import ScaledParameters, hertz_units
 from . import step_loop
-from .devices import compiled_alone, compiler_options, loop_kernels, under_trace
+from .devices import compiled_alone, compiler_options, gathered, loop_kernels, under_trace
 from .results import ImpactResult, Status
 from .solvers import (
     CAP_WIDTH,
@@ -1204,6 +1204,8 @@ def _simulate(
     inputs, shards = _shard_over_devices(inputs, size, group)
     chunk = _default_chunk(shards, dtype) if chunk is None else chunk
     result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)
+    if shards > 1:  # (concrete inputs only) sharded results cut and reshaped on one device
+        result = gathered(result)
     result = jax.tree_util.tree_map(lambda x: x[:size], result)
     if valid is not None:
         result = _mark_invalid(result, valid)
