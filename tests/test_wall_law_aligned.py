@@ -29,17 +29,22 @@ def law(scene):
     )
 
 
-def test_kink_coordinate_puts_theta_star_on_node_one():
-    star = np.array([10.0, 60.0, 85.0, 0.0])
-    assert np.allclose(kink_coordinate(star, star, 85.0)[:3], 1.0)
+def test_kink_coordinate_puts_each_kink_on_its_node():
+    first = np.array([5.0, 40.0, 85.0, 0.0, 30.0])
+    star = np.array([10.0, 60.0, 85.0, 0.0, 30.0])  # the last: the two kinks at one angle
+    kinks = (first, star)
+    u = kink_coordinate(np.stack([first, star]), kinks, 85.0)
+    assert np.allclose(u[0, :2], 1.0) and np.allclose(u[1, :2], 2.0)
     theta = np.linspace(0.0, 85.0, 35)[:, None]
-    u = kink_coordinate(theta, star[None, :], 85.0)
-    assert np.all(np.diff(u, axis=0) > 0)  # monotone in the angle for every theta*
-    np.testing.assert_allclose(kink_angle(u, star[None, :], 85.0), theta + 0 * u, atol=1e-12)
-    # theta* at 0 (slides through at every angle) is used as KINK_MIN_DEG: still defined
-    assert kink_coordinate(KINK_MIN_DEG, 0.0, 85.0) == pytest.approx(1.0)
+    u = kink_coordinate(theta, kinks, 85.0)
+    assert np.all(np.diff(u, axis=0) >= 0)  # monotone in the angle for every pair of kinks
+    assert np.all(np.diff(u[:, :2], axis=0) > 0)
+    np.testing.assert_allclose(kink_angle(u, kinks, 85.0), theta + 0 * u, atol=1e-12)
+    # kinks at 0 (slides at every angle) are used as KINK_MIN_DEG: still defined
+    assert kink_coordinate(KINK_MIN_DEG, (0.0, 0.0), 85.0) == pytest.approx(1.0)
+    assert kink_coordinate(KINK_MIN_DEG + 1.0, (0.0, 0.0), 85.0) > 2.0
     nodes = kink_nodes()
-    assert nodes[0] == 0.0 and nodes[-1] == 2.0 and 1.0 in nodes
+    assert nodes[0] == 0.0 and nodes[-1] == 3.0 and 1.0 in nodes and 2.0 in nodes
     assert np.all(np.diff(nodes) > 0)
 
 
@@ -64,24 +69,37 @@ def test_cells_reproduce_simulate_and_the_lookup_reproduces_the_cells(law, scene
     np.testing.assert_allclose(om_out * r / speed, law.spin_ratio[ok], atol=1e-9)
 
 
-def test_theta_star_separates_rolling_from_sliding_through(law, scene):
+def test_kinks_separate_the_rolling_regimes(law, scene):
     """Just below ``theta*`` the sphere reaches rolling before it leaves, just above it it
-    slides through (where theta* lies inside the table), at the speeds the table uses."""
+    slides through; just below the first kink it still rolls when it leaves (no slip at
+    exit), just above it it slides again before it leaves (where the kinks lie inside the
+    table and apart: at this radius and up to 9 m/s the first lies 0.03-0.2 deg below
+    theta*), at the speeds the table uses."""
     from jaximpact.wall_law._aligned import _CaptureRows
 
     cap = _CaptureRows(law.radius, law.angle_deg, law.omega0, law.capture_speed)
-    star = law.theta_star[0]  # (spin, speed)
+    r = law.radius[0]
+    first, star = law.kink_angles[:, 0]  # (spin, speed) each
     inside = (star > 1.0) & (star < 84.0)
     inside[:, 0] = False  # the capture speed itself
-    assert inside.sum() >= 8
-    j, k = np.nonzero(inside)
-    w = np.asarray(SPINS)[j]
-    for side, rolls in ((-0.02, True), (0.02, False)):
-        a = star[j, k] + side
-        speed = RATIOS[k] * cap.at(law.radius[0], a, w)
-        res = ji.simulate(scene, speed, a, w)
-        assert np.all(np.asarray(res.status) == 0)
-        assert np.all(np.isfinite(np.asarray(res.roll_time)) == rolls), side
+    apart = (first > 1.0) & (first < star - 0.02)
+    apart[:, 0] = False
+    assert inside.sum() >= 8 and apart.sum() >= 8
+    for kink, where in ((star, inside), (first, apart)):
+        j, k = np.nonzero(where)
+        w = np.asarray(SPINS)[j]
+        for side in (-0.005, 0.005):  # (the bisections' last interval: 0.0012 deg)
+            a = kink[j, k] + side
+            speed = RATIOS[k] * cap.at(r, a, w)
+            res = ji.simulate(scene, speed, a, w)
+            assert np.all(np.asarray(res.status) == 0)
+            rolled = np.isfinite(np.asarray(res.roll_time))
+            slip = np.abs(np.asarray(res.vt_out) - np.asarray(res.omega_out) * r) / speed
+            if kink is star:
+                assert np.all(rolled == (side < 0)), side
+            else:
+                assert np.all(rolled), side
+                assert np.all((slip <= 1e-9) == (side < 0)), side
 
 
 @pytest.mark.skipif(GCC is None, reason="no C compiler")
@@ -111,7 +129,10 @@ def test_files_say_the_layout(law, tmp_path):
         assert ds.attrs["layout"] == "aligned"
         assert tuple(ds["cor_n"].dims) == ("radius", "kink_u", "omega0", "speed_ratio")
         assert tuple(ds["capture_speed"].dims) == ("radius", "angle_deg", "omega0")
-        assert tuple(ds["theta_star"].dims) == ("radius", "omega0", "speed_ratio")
+        dims = ("kink", "radius", "omega0", "speed_ratio")
+        assert tuple(ds["kink_angle_deg"].dims) == dims
+        assert list(ds["kink"].values) == ["rolls_at_exit", "reaches_rolling"]
+        np.testing.assert_array_equal(ds["kink_angle_deg"].values, law.kink_angles)
         np.testing.assert_array_equal(ds["kink_u"].values, law.kink_u)
         np.testing.assert_array_equal(ds["cell_angle_deg"].values, law.cell_angle_deg)
     table = pq.read_table(tmp_path / "wall_law.parquet")

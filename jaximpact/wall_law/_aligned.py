@@ -1,15 +1,19 @@
 """The kink-aligned layout of the wall law (``wall_law(..., layout="aligned")``).
 
-The onset of rolling puts a kink into the tangential results: below an angle ``theta*`` the
-sphere reaches rolling before it leaves the wall, above it it slides through. On a tensor
-product of angles the kink moves across the angle nodes as the speed ratio and the radius
-change, and linear interpolation needs hundreds of angles to resolve it (574 at one radius).
-Here the results are tabulated against the aligned coordinate ``u`` of
-:func:`~._table.kink_coordinate` (``theta / theta*`` below the kink, ``1 + (theta - theta*) /
-(85 - theta*)`` above), in which the kink is the node ``u = 1`` at every (radius, spin, speed
-ratio); ``theta*`` is a table of its own over (radius, spin, speed ratio). Measured at one
-radius (BENCHMARKS.md, "Wall law: kink-aligned angles"): 33 nodes of ``u`` at the 64 default
-speed ratios meet 1e-3 in ``cor_n``, ``cor_t`` and ``omega_out r / speed``.
+Rolling puts two kinks into the tangential results (:data:`~._table.KINKS`): below an angle
+``theta*`` the sphere reaches rolling before it leaves the wall, above it it slides through;
+and in fast impacts, below a smaller angle it still rolls when it leaves, above it the
+rolling gives way to sliding again before it leaves. On a tensor product of angles the kinks
+move across the angle nodes as the speed ratio and the radius change, and linear
+interpolation needs hundreds of angles to resolve them (574 at one radius). Here the results
+are tabulated against the aligned coordinate ``u`` of :func:`~._table.kink_coordinate`
+(piecewise linear in the angle between ``0``, the kinks and the top angle), in which the
+kinks are the nodes ``u = 1`` and ``u = 2`` at every (radius, spin, speed ratio); the kink
+angles are a table of their own over (radius, spin, speed ratio). Measured at one radius
+(BENCHMARKS.md, "Wall law: kink-aligned angles"): 33 nodes of ``u`` aligned with ``theta*``
+alone at the 64 default speed ratios met 1e-3 in ``cor_n``, ``cor_t`` and ``omega_out r /
+speed``; over 1-100 um the second kink (at 50-90 m/s) left ``cor_t`` 2.3e-3 off without a
+node of its own.
 
 What stays as in the tensor-product layout: the capture speed on its (radius, angle, spin)
 grid, interpolated through ``g = (v_c cos)^(-1/4)``; the speed ratio; each row's top and the
@@ -17,9 +21,10 @@ stick rows. A cell (radius node, ``u``, spin, speed ratio) is simulated at the a
 ``theta(u; theta*)`` and at the speed ratio times the capture speed the table interpolates at
 that angle, so that a query on a node reproduces the cell.
 
-``theta*`` at a (radius, spin, speed ratio) node: the first angle of a coarse scan (every 5
-deg) at which the sphere no longer reaches rolling (``roll_time`` not finite), then
-bisection; where it rolls at every angle of the table, the table's top angle.
+The kinks at a (radius, spin, speed ratio) node: the first angle of a coarse scan (every 5
+deg) at which the sphere no longer rolls when it leaves (its slip at exit is not 0), and the
+first at which it no longer reaches rolling (``roll_time`` not finite), each then bisected;
+where the scan never gets there, the table's top angle.
 
 Radius nodes: first those of the capture speed (as in the tensor-product layout), then the
 results are checked at the midpoint (in ``log r``) of every interval, on every ``u`` node and
@@ -38,6 +43,7 @@ from ._table import (
     RADIUS_LEVELS,
     RADIUS_MIN_STEP,
     WallLaw,
+    KINKS,
     _cell,
     _multilinear,
     _top,
@@ -47,11 +53,15 @@ from ._table import (
     scene_attributes,
 )
 
-#: Nodes of the aligned coordinate: intervals below the kink (denser toward 0 deg, as
-#: ``(k/n)^1.5``, where the tangential results bend as rolling resistance takes the small
-#: tangential speed: a uniform 16 left ``cor_t`` 1.6e-2 off at 1.4 deg) and above it.
-KINK_BELOW, KINK_ABOVE = 24, 20
-#: Coarse scan for ``theta*``: this many angles from 0 to the table's top, then bisection.
+#: Nodes of the aligned coordinate, intervals per segment: below the first kink (denser
+#: toward 0 deg, as ``(k/n)^1.5``, where the tangential results bend as rolling resistance
+#: takes the small tangential speed: a uniform 16 left ``cor_t`` 1.6e-2 off at 1.4 deg),
+#: between the kinks, and above the second.
+KINK_SEGMENTS = (24, 8, 20)
+#: A rebound whose slip at exit (``vt_out - omega_out r``) is below this fraction of the
+#: impact speed still rolls when it leaves (rolling is an exact state of the model: 1e-16).
+ROLLING_SLIP = 1e-9
+#: Coarse scan for the kinks: this many angles from 0 to the table's top, then bisection.
 KINK_SCAN = 18
 KINK_BISECTIONS = 12
 #: Default tolerance of the results' radius check (the outputs' own interpolation in ``u``
@@ -61,10 +71,12 @@ ALIGNED_TOL = 5e-4
 CHECK_EVERY = 4
 
 
-def kink_nodes(below: int = KINK_BELOW, above: int = KINK_ABOVE) -> np.ndarray:
-    """The nodes of the aligned coordinate (see :data:`KINK_BELOW`)."""
-    low = np.linspace(0.0, 1.0, below + 1) ** 1.5
-    return np.concatenate([low, 1.0 + np.linspace(0.0, 1.0, above + 1)[1:]])
+def kink_nodes(segments=KINK_SEGMENTS) -> np.ndarray:
+    """The nodes of the aligned coordinate (see :data:`KINK_SEGMENTS`): 0, then
+    ``segments[j]`` intervals in ``[j, j + 1]``."""
+    first = np.linspace(0.0, 1.0, segments[0] + 1) ** 1.5
+    rest = [j + np.linspace(0.0, 1.0, n + 1)[1:] for j, n in enumerate(segments[1:], start=1)]
+    return np.concatenate([first, *rest])
 
 
 class _CaptureRows:
@@ -123,7 +135,7 @@ def aligned_law(ctx, scene, radius, angle, omega, x, refine, tol, say) -> tuple:
 
 def _full_nodes(ctx, radii, angle, omega, x, u_nodes, top, stage) -> dict:
     """Everything the table holds at radius nodes ``radii``: capture speeds and statuses
-    ``(n, A, W)``, ``theta*`` ``(n, W, X)``, and the cells ``(n, U, W, X)``."""
+    ``(n, A, W)``, the kink angles ``(n, K, W, X)``, and the cells ``(n, U, W, X)``."""
     radii = np.asarray(radii, dtype=float)
     v_c = ctx.capture_speeds(radii, angle)
     keys = [
@@ -131,8 +143,8 @@ def _full_nodes(ctx, radii, angle, omega, x, u_nodes, top, stage) -> dict:
     ]  # ctx.known holds each lane's (capture speed, status)
     c_status = np.array([ctx.known[k][1] for k in keys]).reshape(v_c.shape)
     cap = _CaptureRows(radii, angle, omega, v_c)
-    star, multiple = _theta_star(ctx, cap, radii, omega, x, top, stage)
-    cells = _cells(ctx, cap, radii, omega, x, u_nodes, star, top, stage)
+    kinks, multiple = _kink_angles(ctx, cap, radii, omega, x, top, stage)
+    cells = _cells(ctx, cap, radii, omega, x, u_nodes, kinks, top, stage)
     X = x.size
     n, U, W = radii.size, u_nodes.size, omega.size
     flat = {k: v.reshape(n * U * W, X) for k, v in cells.items() if k != "speed"}
@@ -144,7 +156,7 @@ def _full_nodes(ctx, radii, angle, omega, x, u_nodes, top, stage) -> dict:
         "radius": radii,
         "v_c": v_c,
         "c_status": c_status,
-        "theta_star": star,
+        "kinks": np.moveaxis(kinks, 0, 1),
         "speed": cells["speed"],
         "status": status,
         "top": top_x.reshape(n, U, W),
@@ -154,10 +166,12 @@ def _full_nodes(ctx, radii, angle, omega, x, u_nodes, top, stage) -> dict:
     }
 
 
-def _theta_star(ctx, cap, radii, omega, x, top, stage):
-    """``theta*`` ``(n, W, X)`` (deg) and the number of (radius, spin, speed) rows whose
-    rolling changes more than once along the scan (their first change is taken)."""
+def _kink_angles(ctx, cap, radii, omega, x, top, stage):
+    """The kink angles ``(K, n, W, X)`` (deg, :data:`~._table.KINKS`' order) and the number of
+    (radius, spin, speed) rows whose regime goes back along the scan (its first change to
+    each regime is taken)."""
     n, W = radii.size, omega.size
+    K = len(KINKS)
     xq = np.where(x == 1.0, 1.0 + 1e-6, x)  # at the capture speed itself: just above it
     scan = np.linspace(0.0, top, KINK_SCAN)
     shape = (n, W, x.size, scan.size)
@@ -165,46 +179,51 @@ def _theta_star(ctx, cap, radii, omega, x, top, stage):
     w = np.broadcast_to(omega[None, :, None, None], shape)
     xx = np.broadcast_to(xq[None, None, :, None], shape)
     th = np.broadcast_to(scan[None, None, None, :], shape)
-    rolls = _rolls(ctx, cap, r, th, w, xx, f"{stage}: theta* scan").reshape(shape)
-    stops = ~rolls
-    changes = np.abs(np.diff(rolls.astype(int), axis=-1)).sum(axis=-1)
-    k = np.argmax(stops, axis=-1)  # first angle of the scan where it slides through
-    never = ~stops.any(axis=-1)
-    lo = scan[np.maximum(k - 1, 0)]
-    hi = scan[k]
-    r3, w3, x3 = (v[..., 0] for v in (r, w, xx))
+    regime = _regimes(ctx, cap, r, th, w, xx, f"{stage}: kink scan").reshape(shape)
+    back = (np.diff(regime, axis=-1) < 0).any(axis=-1)
+    r3, w3, x3 = (np.broadcast_to(v[..., 0], (K,) + shape[:-1]) for v in (r, w, xx))
+    beyond = regime[None] > np.arange(K)[:, None, None, None, None]  # (K, n, W, X, scan)
+    k = np.argmax(beyond, axis=-1)  # first scan angle past kink j
+    never = ~beyond.any(axis=-1)
+    lo, hi = scan[np.maximum(k - 1, 0)], scan[k]
     live = ~never & (k > 0)
+    level_of = np.broadcast_to(np.arange(K)[:, None, None, None], live.shape)
     for level in range(KINK_BISECTIONS):
         mid = 0.5 * (lo + hi)
-        got = _rolls(ctx, cap, r3[live], mid[live], w3[live], x3[live], "")
+        got = _regimes(ctx, cap, r3[live], mid[live], w3[live], x3[live], "")
         if level == 0:
-            ctx.say(f"{stage}: theta* bisection ({KINK_BISECTIONS} x {int(live.sum())} impacts)")
-        rolled = np.zeros(lo.shape, bool)
-        rolled[live] = got
-        lo = np.where(live & rolled, mid, lo)
-        hi = np.where(live & ~rolled, mid, hi)
-    star = np.where(never, top, np.where(k == 0, 0.0, 0.5 * (lo + hi)))
-    return star, int((changes > 1).sum())
+            ctx.say(f"{stage}: kink bisection ({KINK_BISECTIONS} x {int(live.sum())} impacts)")
+        past = np.zeros(lo.shape, bool)
+        past[live] = got > level_of[live]
+        lo = np.where(live & ~past, mid, lo)
+        hi = np.where(live & past, mid, hi)
+    kinks = np.where(never, top, np.where(k == 0, 0.0, 0.5 * (lo + hi)))
+    return kinks, int(back.sum())
 
 
-def _rolls(ctx, cap, r, theta, w, x, stage) -> np.ndarray:
-    """Whether the sphere reaches rolling before it leaves (flat lanes) at ``x`` times the
-    interpolated capture speed; lanes not simulated (a stick cell, above the speed range)
-    count as rolling, so that they make no change of their own."""
+def _regimes(ctx, cap, r, theta, w, x, stage) -> np.ndarray:
+    """The rolling regime of flat lanes at ``x`` times the interpolated capture speed: 0 the
+    sphere reaches rolling and still rolls when it leaves, 1 it reaches rolling and slides
+    again, 2 it never rolls (captured: as it was when the contact ended). Lanes not simulated
+    (a stick cell, above the speed range) count as 0, so that they make no change of their
+    own."""
     r, theta, w, x = (np.asarray(v, dtype=float).ravel() for v in (r, theta, w, x))
     speed = x * cap.at(r, theta, w)
     got = ctx.impacts_at(r, theta, w, np.where(np.isfinite(speed), speed, np.inf), stage,
                          rolled=True)  # fmt: skip
-    return np.where(got["status"] == NOT_SIMULATED, True, got["rolled"] & (got["status"] == 0))
+    with np.errstate(invalid="ignore"):
+        slides = ~(np.abs(got["vt_ratio"] - got["spin_ratio"]) <= ROLLING_SLIP)
+    regime = np.where(got["rolled"], np.where(slides & (got["status"] == 0), 1, 0), 2)
+    return np.where(got["status"] == NOT_SIMULATED, 0, regime)
 
 
-def _cells(ctx, cap, radii, omega, x, u_nodes, star, top, stage) -> dict:
-    """The result cells ``(n, U, W, X)`` at ``theta(u; theta*)`` and ``x`` times the
+def _cells(ctx, cap, radii, omega, x, u_nodes, kinks, top, stage) -> dict:
+    """The result cells ``(n, U, W, X)`` at ``theta(u; kinks)`` and ``x`` times the
     interpolated capture speed there (the ``x = 1`` column is not simulated: :func:`_top`
     sets it)."""
     n, U, W, X = radii.size, u_nodes.size, omega.size, x.size
     shape = (n, U, W, X)
-    theta = kink_angle(u_nodes[None, :, None, None], star[:, None, :, :], top)
+    theta = kink_angle(u_nodes[None, :, None, None], kinks[:, :, None, :, :], top)
     r = np.broadcast_to(radii[:, None, None, None], shape)
     w = np.broadcast_to(omega[None, None, :, None], shape)
     v_ref = cap.at(r, theta, w)
@@ -220,13 +239,13 @@ def _cells(ctx, cap, radii, omega, x, u_nodes, star, top, stage) -> dict:
 def _check(ctx, law: WallLaw, radii, u_nodes, top, stage) -> np.ndarray:
     """Largest miss of ``law`` (per radius in ``radii``) against ``simulate`` on the cells a
     node at that radius would have (every ``u``, every :data:`CHECK_EVERY`-th speed ratio
-    above 1), at the speeds the table interpolates there; NaN-free (0 where nothing
-    rebounds)."""
+    above 1), at the speeds the table interpolates there, in the issue's measures (``cor_n``,
+    ``cor_t``, the spin in units of speed / radius); NaN-free (0 where nothing rebounds)."""
     omega, x = law.omega0, law.speed_ratio
     cols = np.unique(np.append(np.arange(1, x.size, CHECK_EVERY), x.size - 1))
     cap = _CaptureRows(law.radius, law.angle_deg, omega, law.capture_speed)
-    star, _ = _theta_star(ctx, cap, radii, omega, x[cols], top, stage)
-    cells = _cells(ctx, cap, radii, omega, x[cols], u_nodes, star, top, stage)
+    kinks, _ = _kink_angles(ctx, cap, radii, omega, x[cols], top, stage)
+    cells = _cells(ctx, cap, radii, omega, x[cols], u_nodes, kinks, top, stage)
     n, U, W, C = cells["speed"].shape
     r = np.broadcast_to(radii[:, None, None, None], (n, U, W, C))
     w = np.broadcast_to(omega[None, None, :, None], (n, U, W, C))
@@ -240,9 +259,12 @@ def _check(ctx, law: WallLaw, radii, u_nodes, top, stage) -> np.ndarray:
             "vt_ratio": vt_out / speed,
             "spin_ratio": om_out * r / speed,
         }
+    # cor_t: the tangential miss over the tangential impact speed (none at 0 deg)
+    sin = np.sin(th)
+    scale = {"cor_n": 1.0, "vt_ratio": np.where(sin > 0, sin, np.inf), "spin_ratio": 1.0}
     miss = np.zeros(n)
     for name in OUTPUTS:
-        e = np.where(ok, np.abs(table[name] - cells[name]), 0.0)
+        e = np.where(ok, np.abs(table[name] - cells[name]) / scale[name], 0.0)
         miss = np.maximum(miss, e.reshape(n, -1).max(axis=1))
     return miss
 
@@ -258,12 +280,11 @@ def _assembled(scene, nodes, angle, omega, x, u_nodes) -> WallLaw:
     """The :class:`WallLaw` of the nodes; cells without results (stick cells) take the
     nearest radius's that has them (as the tensor-product layout's stick rows do)."""
     nodes = {k: v.copy() for k, v in nodes.items()}
-    for name in (*OUTPUTS, "theta_star"):
+    for name in (*OUTPUTS, "kinks"):
         _fill_along_radius(nodes[name])
     stick = ~np.isfinite(nodes["v_c"])
-    for name in OUTPUTS:  # none left where no radius has results
+    for name in (*OUTPUTS, "kinks"):  # none left where no radius has results
         nodes[name] = np.where(np.isfinite(nodes[name]), nodes[name], 0.0)
-    nodes["theta_star"] = np.where(np.isfinite(nodes["theta_star"]), nodes["theta_star"], 0.0)
     return WallLaw(
         radius=nodes["radius"],
         angle_deg=angle,
@@ -281,7 +302,7 @@ def _assembled(scene, nodes, angle, omega, x, u_nodes) -> WallLaw:
         scene=scene_attributes(scene),
         top_ratio=nodes["top"],
         captured_above_top=nodes["again"],
-        theta_star=nodes["theta_star"],
+        kink_angles=np.moveaxis(nodes["kinks"], 1, 0),
         kink_u=u_nodes,
     )
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._table import KINK_MIN_DEG, WallLaw
+from ._table import KINK_MIN_DEG, KINKS, WallLaw
 
 __all__ = ["c_header", "write_code"]
 
@@ -76,9 +76,10 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
     )
     axis2 = "aligned angle coordinate" if law.aligned else "angle"
     aligned_note = (
-        f"; the results on {U} nodes of the kink-aligned angle coordinate\n   (angle / theta* "
-        "below the angle theta*(radius, spin, speed) under which the sphere reaches\n   "
-        "rolling, 1 + (angle - theta*) / (top angle - theta*) above it) instead of the angles"
+        f"; the results on {U} nodes of the kink-aligned angle coordinate\n   (piecewise "
+        "linear in the angle between 0, the kink angles (radius, spin, speed) and the\n   "
+        "top angle: below the first the sphere still rolls when it leaves, below the\n   "
+        "second, theta*, it reaches rolling) instead of the angles"
         if law.aligned
         else ""
     )
@@ -120,6 +121,8 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 /* 1: the results are on the kink-aligned angle coordinate (JAXIMPACT_WL_NU nodes) */
 #define JAXIMPACT_WL_ALIGNED {1 if law.aligned else 0}
 #define JAXIMPACT_WL_NU {U}
+/* number of kinks of the aligned coordinate (jaximpact.wall_law._table.KINKS) */
+#define JAXIMPACT_WL_NK {len(KINKS)}
 #define JAXIMPACT_WL_KINK_MIN_DEG {KINK_MIN_DEG!r}
 /* 1: the speed axis is the speed over the capture speed; 0: the speed in m/s */
 #define JAXIMPACT_WL_CAPTURE_RATIO {1 if capture else 0}
@@ -143,8 +146,8 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
         (
             "/* nodes of the kink-aligned angle coordinate */\n"
             + _array("jaximpact_wl_kink_u", law.kink_u)
-            + "/* theta*, deg [radius][spin][speed] */\n"
-            + _array("jaximpact_wl_theta_star", law.theta_star)
+            + f"/* kink angles ({', '.join(KINKS)}), deg [kink][radius][spin][speed] */\n"
+            + _array("jaximpact_wl_kink_angles", law.kink_angles)
             if law.aligned
             else ""
         ),

@@ -8,7 +8,7 @@ import numpy as np
 
 from .._model.scene import SceneError
 from ._capture import CaptureStatus
-from ._table import FILL_SHARE, WallLaw
+from ._table import FILL_SHARE, KINK_MIN_DEG, KINKS, WallLaw
 
 __all__ = ["read_draws", "to_xarray", "write_netcdf", "write_parquet", "NETCDF", "PARQUET"]
 
@@ -57,12 +57,14 @@ UNCERTAINTY = {
     "cor_n_q95": ("1", "95 % quantile of cor_n over the draws that rebound"),
 }
 KINK_U_ABOUT = (
-    "kink-aligned angle coordinate: angle / theta_star below theta_star, 1 + (angle - "
-    "theta_star) / (top angle - theta_star) above it"
+    "kink-aligned angle coordinate: piecewise linear in the angle, j + (angle - b_j) / "
+    "(b_(j+1) - b_j) between the breakpoints b = 0, the kink angles (clipped to at least "
+    "kink_min_deg and made nondecreasing) and the top angle"
 )
-THETA_STAR_ABOUT = (
-    "incidence angle below which the sphere reaches rolling before it leaves the wall (the "
-    "kink of the tangential results); the top angle where it rolls at every angle"
+KINK_ANGLE_ABOUT = (
+    "incidence angles of the kinks of the tangential results: below rolls_at_exit the sphere "
+    "reaches rolling and still rolls when it leaves, below reaches_rolling (theta*) it "
+    "reaches rolling; the top angle where the scan never passed the kink"
 )
 COORDS = {
     "radius": ("m", "sphere radius"),
@@ -96,9 +98,10 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
     data = {}
     if law.aligned:
         coords["kink_u"] = ("kink_u", law.kink_u, {"units": "1", "long_name": KINK_U_ABOUT})
-        data["theta_star"] = (
-            ("radius", "omega0", "speed_ratio"), law.theta_star,
-            {"units": "deg", "long_name": THETA_STAR_ABOUT},
+        coords["kink"] = ("kink", np.array(KINKS), {"long_name": "kinks of the aligned layout"})
+        data["kink_angle_deg"] = (
+            ("kink", "radius", "omega0", "speed_ratio"), law.kink_angles,
+            {"units": "deg", "long_name": KINK_ANGLE_ABOUT},
         )  # fmt: skip
         data["cell_angle_deg"] = (
             dims4, np.asarray(law.cell_angle_deg),
@@ -133,14 +136,15 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
             else "linear in speed_ratio**0.2"
         ),
         "interpolation": (
-            "theta_star multilinear in log(radius), omega0 and the speed coordinate; the "
-            "results multilinear in log(radius), kink_u (of the query's angle at that "
-            "theta_star), omega0 and the speed coordinate; the capture speed in log(radius), "
-            "angle_deg and omega0"
+            "kink_angle_deg multilinear in log(radius), omega0 and the speed coordinate; "
+            "the results multilinear in log(radius), kink_u (of the query's angle at those "
+            "kink angles), omega0 and the speed coordinate; the capture speed in "
+            "log(radius), angle_deg and omega0"
             if law.aligned
             else "multilinear: log(radius), angle_deg, omega0 and the speed coordinate"
         ),
         "layout": "aligned" if law.aligned else "grid",
+        **({"kink_min_deg": KINK_MIN_DEG} if law.aligned else {}),
         "build_seconds": float(law.seconds),
         "impacts_simulated": int(law.impacts),
         "posterior_draws": int(law.uncertainty.get("draws", 0)),

@@ -28,8 +28,8 @@ interpolated capture speed rises to infinity instead of jumping. Radius nodes ar
 
 Layouts: this module's tensor product of angles (``layout="grid"``), described here, or the
 kink-aligned layout of :mod:`._aligned` (``layout="aligned"``, the default for a radius range
-of an adhesive scene), whose results are on an angle coordinate that follows the onset of
-rolling (``theta_star``, ``kink_u``); the capture speed, the speed axis, the rows' tops and
+of an adhesive scene), whose results are on an angle coordinate that follows the kinks of
+rolling (``kink_angles``, ``kink_u``); the capture speed, the speed axis, the rows' tops and
 the stick rows are the same in both.
 
 Refinement: radius and angle intervals are split where linear interpolation of the results
@@ -145,12 +145,14 @@ class WallLaw:
     top_ratio: np.ndarray | None = None
     captured_above_top: np.ndarray | None = None
     radius_report: dict = field(default_factory=dict)
-    # The kink-aligned layout (``layout="aligned"``, :mod:`._aligned`): the angle ``theta*``
-    # ``(radius, spin, speed)`` below which the sphere reaches rolling before it leaves, and
-    # the nodes of the aligned angle coordinate (:func:`kink_coordinate`), which then index
-    # the results' second axis (and ``top_ratio``'s) instead of ``angle_deg``; the capture
-    # speed stays on ``angle_deg``. ``None``: the tensor-product layout.
-    theta_star: np.ndarray | None = None
+    # The kink-aligned layout (``layout="aligned"``, :mod:`._aligned`): ``kink_angles``
+    # ``(kink, radius, spin, speed)``, the angles of the kinks of the tangential results
+    # (:data:`KINKS`: below the first the sphere still rolls when it leaves, below the second
+    # it reaches rolling), and the nodes of the aligned angle coordinate
+    # (:func:`kink_coordinate`), which then index the results' second axis (and
+    # ``top_ratio``'s) instead of ``angle_deg``; the capture speed stays on ``angle_deg``.
+    # ``None``: the tensor-product layout.
+    kink_angles: np.ndarray | None = None
     kink_u: np.ndarray | None = None
 
     def __post_init__(self):
@@ -162,15 +164,21 @@ class WallLaw:
     @property
     def aligned(self) -> bool:
         """The kink-aligned layout (results against :func:`kink_coordinate`)."""
-        return self.theta_star is not None
+        return self.kink_angles is not None
+
+    @property
+    def theta_star(self) -> np.ndarray:
+        """``(radius, spin, speed)``: the angle (deg) below which the sphere reaches rolling
+        before it leaves (the last of :attr:`kink_angles`)."""
+        return self.kink_angles[-1]
 
     @property
     def cell_angle_deg(self) -> np.ndarray:
         """``(radius, angle or u, spin, speed)``: the incidence angle of each result cell."""
         if not self.aligned:
             return np.broadcast_to(self.angle_deg[None, :, None, None], self.shape)
-        star = self.theta_star[:, None, :, :]
-        return kink_angle(self.kink_u[None, :, None, None], star, self.angle_deg[-1])
+        kinks = self.kink_angles[:, :, None, :, :]
+        return kink_angle(self.kink_u[None, :, None, None], kinks, self.angle_deg[-1])
 
     @property
     def stick(self) -> np.ndarray:
@@ -275,15 +283,18 @@ class WallLaw:
         ix, wx, c = _cell(u_nodes, u)
         clamped |= c & ~captured
         if self.aligned:  # the results' angle axis: the aligned coordinate at this theta*
-            star = _multilinear(self.theta_star, (ir, iw, ix), (wr, ww, wx))
-            ia, wa, _ = _cell(self.kink_u, kink_coordinate(angle, star, self.angle_deg[-1]))
+            kinks = [_multilinear(k, (ir, iw, ix), (wr, ww, wx)) for k in self.kink_angles]
+            ia, wa, _ = _cell(self.kink_u, kink_coordinate(angle, kinks, self.angle_deg[-1]))
         # above the row's valid top: captured where the rows stick again there, else the
-        # row's last values (the speed range's top); flagged as clamped either way
+        # row's last values (the speed range's top); flagged as clamped either way. Also
+        # flagged: a query above the top of any row its cell interpolates from (those rows'
+        # cells above their top repeat their last values, not the impact's).
         u_top = _multilinear(self.u_top, (ir, ia, iw), (wr, wa, ww))
+        lowest_top = _corner_min(self.u_top, (ir, ia, iw), (wr, wa, ww))
         again = _multilinear(self.captured_above_top, (ir, ia, iw), (wr, wa, ww))
         slack = 1e-9 * max(1.0, float(u_nodes[-1] - u_nodes[0]))
         above = (u > u_top + slack) & ~captured
-        clamped |= above
+        clamped |= above | ((u > lowest_top + slack) & ~captured)
         captured |= above & (again >= 0.5)
         out = {}
         for name in OUTPUTS:
@@ -298,27 +309,48 @@ class WallLaw:
         return code, vn_out, vt_out, omega_out
 
 
-#: ``theta*`` is used no lower than this (deg) in the aligned coordinate: where the sphere
-#: slides through at every angle (no friction, or spin) the coordinate stays defined.
+#: The kinks of the aligned layout, in the order of their angles: below ``rolls_at_exit`` the
+#: sphere reaches rolling and still rolls when it leaves; between it and ``reaches_rolling``
+#: (``theta*``) it reaches rolling and slides again before it leaves (fast impacts, where the
+#: normal force falls faster than friction can hold the rolling); above, it slides through.
+KINKS = ("rolls_at_exit", "reaches_rolling")
+#: The first kink is used no lower than this (deg): where the sphere slides at every angle (no
+#: friction, or spin) the coordinate stays defined.
 KINK_MIN_DEG = 0.5
 
 
-def kink_coordinate(theta, theta_star, top):
-    """The aligned angle coordinate (deg in, dimensionless out): ``theta / theta*`` below the
-    rolling kink ``theta*``, ``1 + (theta - theta*) / (top - theta*)`` above it (``top``: the
-    table's largest angle), so that the kink is the node ``u = 1`` at every (radius, spin,
-    speed). The generated C function computes the same."""
+def kink_breaks(kinks, top) -> list:
+    """The breakpoints ``[0, k_1, ..., k_K, top]`` (deg) of the aligned coordinate: the kink
+    angles clipped to ``[KINK_MIN_DEG, top]`` and made nondecreasing."""
+    out, lo = [np.zeros(np.shape(kinks[0]))], KINK_MIN_DEG
+    for k in kinks:
+        lo = np.clip(k, lo, top)
+        out.append(lo)
+    return out + [np.full(np.shape(kinks[0]), float(top))]
+
+
+def kink_coordinate(theta, kinks, top):
+    """The aligned angle coordinate (deg in, dimensionless out): piecewise linear, ``j + (theta
+    - b_j) / (b_(j+1) - b_j)`` between the breakpoints ``b`` of :func:`kink_breaks`, so that
+    kink ``j`` is the node ``u = j + 1`` at every (radius, spin, speed); ``kinks``: a sequence
+    (``KINKS``' order) of arrays that broadcast with ``theta``. The generated C function
+    computes the same."""
     theta = np.asarray(theta, dtype=float)
-    star = np.clip(theta_star, KINK_MIN_DEG, top)
-    above = np.maximum(top - star, 1e-9)
-    return np.where(theta <= star, theta / star, 1.0 + (theta - star) / above)
+    b = kink_breaks(kinks, top)
+    u = 0.0
+    for lo, hi in zip(b[:-1], b[1:], strict=True):
+        u = u + np.clip((theta - lo) / np.maximum(hi - lo, 1e-9), 0.0, 1.0)
+    return u
 
 
-def kink_angle(u, theta_star, top):
+def kink_angle(u, kinks, top):
     """The angle (deg) of the aligned coordinate ``u`` (the inverse of
     :func:`kink_coordinate`)."""
-    star = np.clip(theta_star, KINK_MIN_DEG, top)
-    return np.where(u <= 1.0, u * star, star + (u - 1.0) * (top - star))
+    b = kink_breaks(kinks, top)
+    theta = 0.0
+    for j, (lo, hi) in enumerate(zip(b[:-1], b[1:], strict=True)):
+        theta = theta + np.clip(u - j, 0.0, 1.0) * (hi - lo)
+    return theta
 
 
 def _u(x, capture_ratio: bool):
@@ -361,6 +393,25 @@ def _multilinear(table, idx, w):
         for k, b in enumerate(bits):
             weight = weight * (w[k] if b else 1.0 - w[k])
         out = out + weight * table[ii]
+    return out
+
+
+def _corner_min(table, idx, w):
+    """The smallest value of ``table`` over the corners of the cell at ``idx`` that carry
+    weight in :func:`_multilinear` (as the generated C code)."""
+    table = np.asarray(table)
+    d = len(idx)
+    out = np.inf
+    for corner in range(2**d):
+        bits = [(corner >> k) & 1 for k in range(d)]
+        ii = tuple(
+            np.minimum(i + b, table.shape[k] - 1)
+            for k, (i, b) in enumerate(zip(idx, bits, strict=True))
+        )
+        weight = 1.0
+        for k, b in enumerate(bits):
+            weight = weight * (w[k] if b else 1.0 - w[k])
+        out = np.where(weight > 0, np.minimum(out, table[ii]), out)
     return out
 
 
