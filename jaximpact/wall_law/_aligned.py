@@ -38,12 +38,12 @@ import numpy as np
 
 from ._capture import CaptureStatus
 from ._table import (
+    KINKS,
     NOT_SIMULATED,
     OUTPUTS,
     RADIUS_LEVELS,
     RADIUS_MIN_STEP,
     WallLaw,
-    KINKS,
     _cell,
     _multilinear,
     _top,
