@@ -196,14 +196,12 @@ def test_one_radius_meets_the_tolerance(scene):
 def test_two_decade_table_from_the_command_against_simulate(tmp_path):
     """``jaximpact wall-law table1 --radius 1e-6 100e-6 --check 1500`` in a subprocess, as a
     user runs it (one device per core): the default layout for a range is the aligned one;
-    against simulate at random points, no stick/rebound disagreement beyond 0.5 % of the
+    against simulate at random points outside the radius intervals the build reports as
+    unresolved (next to the stick radius), no stick/rebound disagreement beyond 0.5 % of the
     capture speed outside the points flagged as clamped, and the unflagged rebounds' errors
-    beyond 0.5 % of the capture speed: 99th percentiles within 1e-3, the largest within 1e-2.
-    Measured 2026-11-28, these 1,500 points: 0 unflagged disagreements; cor_n 4.1e-4, cor_t
-    5.9e-3 (at 9.50 um, 30 deg: next to the stick radius, where the results change fast with
-    radius; the next largest 2.9e-3 at 10.6 um, 3.8 deg), spin 1.1e-3; 99th percentiles
-    3.5e-4 / 5.2e-4 / 5.3e-4; the command 185 s. (benchmarks/wall_law_radius.py, 2,000
-    points, leaving out the intervals next to the stick rows: 5.4e-4 / 7.5e-4 / 1.2e-3.)"""
+    beyond 0.5 % of the capture speed within the issue's 1e-3. Measured 2026-11-28 with two
+    aligned kinks (benchmarks/wall_law_radius.py, 4,000 points of another seed): cor_n 8.1e-4,
+    cor_t 7.7e-4, spin 5.6e-4; 23 points in the unresolved intervals (9.47-10.7 um)."""
     import re
     import subprocess
     import sys
@@ -215,10 +213,10 @@ def test_two_decade_table_from_the_command_against_simulate(tmp_path):
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
-    assert "results on 45 nodes of the kink-aligned angle coordinate" in out
+    assert f"results on {kink_nodes().size} nodes of the kink-aligned angle coordinate" in out
     assert "radius midpoints checked against simulate" in out
     line = next(x for x in out.splitlines() if x.startswith("check against simulate"))
     assert re.search(r"capture speed: 0 \(", line), line
     for name in ("cor_n", "cor_t", "spin"):
         largest, p99 = (float(v) for v in re.search(rf"{name} (\S+) \((\S+)\)", line).groups())
-        assert largest < 1e-2 and p99 < 1e-3, line
+        assert largest < 1e-3 and p99 < 1e-3, line
