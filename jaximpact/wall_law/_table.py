@@ -496,11 +496,12 @@ def wall_law(
     - `progress`: a callable taking a one-line message, or None.
     - `layout`: ``"grid"`` (results on the tensor product of the angles, refined where the
       rows bend) or ``"aligned"`` (results against the kink-aligned angle coordinate,
-      :mod:`jaximpact.wall_law._aligned`: 45 angle nodes instead of hundreds; needs
+      :mod:`jaximpact.wall_law._aligned`: 57 angle nodes instead of hundreds; needs
       adhesion; `refine_tol` is then the results' radius check, default 5e-4, and the angle
       and speed passes are not run). Default (``None``): ``"aligned"`` for a radius range
-      of an adhesive scene (1-100 um in about 4 minutes on 2 cores instead of 26), else
-      ``"grid"``.
+      of an adhesive scene at one spin (1-100 um in about 3 minutes on 2 cores instead of
+      26), else ``"grid"`` (with spin nodes the aligned layout was not verified: at 5 spins
+      over +-2e4 rad/s its spin was 0.17 off at a spin node; docs/open_points.md).
 
     **Returns:** a :class:`WallLaw`.
 
@@ -523,7 +524,7 @@ def wall_law(
     if refine_tol is not None and not (isinstance(refine_tol, float | int) and refine_tol > 0):
         raise SceneError(f"refine_tol must be > 0, got {refine_tol!r}")
     if layout is None:
-        layout = "aligned" if adhesive and radius.size >= 2 else "grid"
+        layout = "aligned" if adhesive and radius.size >= 2 and omega.size == 1 else "grid"
     if layout not in ("grid", "aligned"):
         raise SceneError(f"layout must be 'grid' or 'aligned', got {layout!r}")
     if layout == "aligned" and not adhesive:

@@ -311,8 +311,8 @@ def add_wall_law_command(sub) -> None:
         choices=("grid", "aligned"),
         default=None,
         help="grid: results on the angles, refined where they bend; aligned: on an angle "
-        "coordinate that follows the onset of rolling (45 angle nodes; needs adhesion). "
-        "Default: aligned for a radius range of a scene with adhesion, else grid",
+        "coordinate that follows the kinks of rolling (57 angle nodes; needs adhesion). "
+        "Default: aligned for a radius range of a scene with adhesion at one spin, else grid",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=cmd_wall_law)
