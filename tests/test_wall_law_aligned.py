@@ -201,7 +201,7 @@ def test_two_decade_table_from_the_command_against_simulate(tmp_path):
     capture speed outside the points flagged as clamped, and the unflagged rebounds' errors
     beyond 0.5 % of the capture speed within the issue's 1e-3. Measured 2026-11-28 with two
     aligned kinks (benchmarks/wall_law_radius.py, 4,000 points of another seed): cor_n 8.1e-4,
-    cor_t 7.7e-4, spin 5.6e-4; 23 points in the unresolved intervals (9.47-10.7 um)."""
+    cor_t 7.7e-4, spin 5.6e-4; 23 points in the unresolved intervals (9.47-10.2 um)."""
     import re
     import subprocess
     import sys
