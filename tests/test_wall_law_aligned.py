@@ -120,6 +120,27 @@ def test_c_header_matches_the_python_interpolation(law, tmp_path):
         np.testing.assert_allclose(g, w, rtol=1e-13, atol=1e-13)
 
 
+@pytest.mark.skipif(GCC is None, reason="no C compiler")
+def test_unresolved_radius_intervals_are_flagged_as_clamped(law, tmp_path):
+    """A radius inside an interval the build reports as not resolved to its tolerances gets
+    the clamped bit, in Python and in the C function, with the same outputs as before."""
+    import dataclasses
+
+    r0 = law.radius[0]
+    flagged = dataclasses.replace(law, radius_report={"results_unresolved": [(r0, r0, 0.1)]})
+    assert flagged.unresolved_radii.shape == (1, 2)
+    vn, vt = np.full(50, 1.0), np.linspace(0.0, 3.0, 50)
+    plain = law.evaluate(r0, vn, vt, 0.0)
+    got = flagged.evaluate(r0, vn, vt, 0.0)
+    assert np.all(plain[0] & 2 == 0) and np.all(got[0] & 2 == 2)
+    np.testing.assert_array_equal(got[0], plain[0] | 2)
+    for g, p in zip(got[1:], plain[1:], strict=True):
+        np.testing.assert_array_equal(g, p)
+    evaluate = c_wall_law(compile_c(tmp_path, flagged, SHIM, "shim_unresolved"))
+    c_got = evaluate(np.full(50, r0), vn, vt, np.zeros(50))
+    np.testing.assert_array_equal(c_got[0], got[0])
+
+
 def test_files_say_the_layout(law, tmp_path):
     xr = pytest.importorskip("xarray")
     import pyarrow.parquet as pq

@@ -97,7 +97,9 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
    Interpolation: log(radius), angle (deg), spin (rad/s) linear; speed in
    u = {"asinh(sqrt(x - 1))" if capture else "x^0.2"}; outside the table the nearest edge (flagged
    JAXIMPACT_WL_CLAMPED), and above a row's valid top (the speed range, or a speed at which
-   the sphere sticks again) that row's last results, also flagged JAXIMPACT_WL_CLAMPED.{g_note}
+   the sphere sticks again) that row's last results, also flagged JAXIMPACT_WL_CLAMPED; so is
+   a radius in one of the JAXIMPACT_WL_NUNRES intervals the build could not resolve to its
+   tolerances (next to the radius below which the sphere sticks at every speed).{g_note}
    Tangential speeds of either sign: the table is mirrored.
 
    Scene:
@@ -124,6 +126,8 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 /* number of kinks of the aligned coordinate (jaximpact.wall_law._table.KINKS) */
 #define JAXIMPACT_WL_NK {len(KINKS)}
 #define JAXIMPACT_WL_KINK_MIN_DEG {KINK_MIN_DEG!r}
+/* radius intervals not resolved to the build's tolerances (flagged as clamped) */
+#define JAXIMPACT_WL_NUNRES {law.unresolved_radii.shape[0]}
 /* 1: the speed axis is the speed over the capture speed; 0: the speed in m/s */
 #define JAXIMPACT_WL_CAPTURE_RATIO {1 if capture else 0}
 /* the sphere's density the table was made for, kg/m^3 */
@@ -134,6 +138,11 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
         "/* incidence angle from the normal, deg */\n"
         + _array("jaximpact_wl_angle_deg", law.angle_deg),
         "/* spin, rad/s */\n" + _array("jaximpact_wl_omega0", law.omega0),
+        "/* the unresolved radius intervals, m: lo, hi pairs (a placeholder where none) */\n"
+        + _array(
+            "jaximpact_wl_unresolved_radii",
+            law.unresolved_radii if law.unresolved_radii.size else [0.0, 0.0],
+        ),
         "/* interpolation coordinate u of the speed nodes */\n"
         + _array("jaximpact_wl_u", law.u_of(law.speed_ratio)),
         (

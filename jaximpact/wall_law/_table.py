@@ -167,6 +167,16 @@ class WallLaw:
         return self.kink_angles is not None
 
     @property
+    def unresolved_radii(self) -> np.ndarray:
+        """``(n, 2)``: the radius intervals (m) the build reports as not resolved to its
+        tolerances (the capture speed's next to the stick rows, and the aligned layout's
+        results check at the smallest radius step); a query inside one is flagged as
+        clamped."""
+        report = self.radius_report or {}
+        bands = list(report.get("unresolved", [])) + list(report.get("results_unresolved", []))
+        return np.array([(lo, hi) for lo, hi, *_ in bands], dtype=float).reshape(-1, 2)
+
+    @property
     def theta_star(self) -> np.ndarray:
         """``(radius, spin, speed)``: the angle (deg) below which the sphere reaches rolling
         before it leaves (the last of :attr:`kink_angles`)."""
@@ -251,7 +261,9 @@ class WallLaw:
         ``vt = r omega`` rolling). Arrays broadcast.
 
         Returns ``(code, vn_out, vt_out, omega_out)``: ``code`` bit 0 (1) set where captured,
-        bit 1 (2) where an input was outside the table and clamped to its edge, bit 2 (4)
+        bit 1 (2) where an input was outside the table and clamped to its edge, above a row's
+        valid top, or in a radius interval not resolved to the build's tolerances
+        (:attr:`unresolved_radii`), bit 2 (4)
         where the input is invalid (radius or ``vn`` not > 0, or not finite); ``vn_out`` (m/s,
         away from the wall), ``vt_out`` (m/s), ``omega_out`` (rad/s): all 0 where captured or
         invalid.
@@ -268,6 +280,8 @@ class WallLaw:
         speed = np.hypot(vn, vt_abs)
         angle = np.degrees(np.arctan2(vt_abs, vn))
         clamped = np.zeros(radius.shape, bool)
+        for lo, hi in self.unresolved_radii:  # the table misses its tolerance there
+            clamped |= (radius >= lo) & (radius <= hi)
         # radius: log, angle and spin: linear
         ir, wr, c = _cell(np.log(self.radius), np.log(radius))
         clamped |= c
