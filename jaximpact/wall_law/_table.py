@@ -391,12 +391,11 @@ def _cell(nodes, q):
     return i, w, lo_out | hi_out
 
 
-def _multilinear(table, idx, w):
-    """Multilinear interpolation in the cell at ``idx`` (one index per axis) with weights ``w``
-    (corners in the order the generated C code sums them, so the two agree bit for bit)."""
+def _corners(table, idx, w):
+    """``(weight, value)`` of each corner of the cell at ``idx`` (one index per axis) with
+    weights ``w``, in the order the generated C code visits them."""
     table = np.asarray(table)
     d = len(idx)
-    out = 0.0
     for corner in range(2**d):
         bits = [(corner >> k) & 1 for k in range(d)]
         ii = tuple(
@@ -406,26 +405,24 @@ def _multilinear(table, idx, w):
         weight = 1.0
         for k, b in enumerate(bits):
             weight = weight * (w[k] if b else 1.0 - w[k])
-        out = out + weight * table[ii]
+        yield weight, table[ii]
+
+
+def _multilinear(table, idx, w):
+    """Multilinear interpolation in the cell at ``idx`` with weights ``w`` (corners summed in
+    the generated C code's order, so the two agree bit for bit)."""
+    out = 0.0
+    for weight, value in _corners(table, idx, w):
+        out = out + weight * value
     return out
 
 
 def _corner_min(table, idx, w):
     """The smallest value of ``table`` over the corners of the cell at ``idx`` that carry
     weight in :func:`_multilinear` (as the generated C code)."""
-    table = np.asarray(table)
-    d = len(idx)
     out = np.inf
-    for corner in range(2**d):
-        bits = [(corner >> k) & 1 for k in range(d)]
-        ii = tuple(
-            np.minimum(i + b, table.shape[k] - 1)
-            for k, (i, b) in enumerate(zip(idx, bits, strict=True))
-        )
-        weight = 1.0
-        for k, b in enumerate(bits):
-            weight = weight * (w[k] if b else 1.0 - w[k])
-        out = np.where(weight > 0, np.minimum(out, table[ii]), out)
+    for weight, value in _corners(table, idx, w):
+        out = np.where(weight > 0, np.minimum(out, value), out)
     return out
 
 
