@@ -99,8 +99,7 @@ def capture_errors(law, scene, n, seed=4):
 def simulate_errors(law, scene, n, seed=5):
     pts = random_points(law, n, seed=seed)
     c = compare_with_simulate(law, scene, pts)
-    report = law.radius_report
-    bands = report.get("unresolved", []) + report.get("results_unresolved", [])
+    bands = [(lo, hi, None) for lo, hi in law.unresolved_radii]
     band = in_bands(pts["radius"], bands)
     clamped = (c["code"] & 2) == 2
     agree = c["status_agree"] | c["near_capture"] | band

@@ -240,9 +240,8 @@ def _report(law, scene, scene_name, check) -> None:
         flagged = (c["code"] & 2) == 2
         near = np.abs(c["speed_ratio"] - 1.0) <= 5e-3
         # the radius intervals the build reports as unresolved: counted apart
-        report = law.radius_report
-        bands = report.get("unresolved", []) + report.get("results_unresolved", [])
-        apart = np.array([any(lo <= r <= hi for lo, hi, _ in bands) for r in pts["radius"]])
+        r, bands = pts["radius"][:, None], law.unresolved_radii
+        apart = ((r >= bands[:, 0]) & (r <= bands[:, 1])).any(axis=1)
         near |= apart
         disagree = ~c["status_agree"] & ~near
         # within 0.5 % of the capture speed the results change steeply with the speed ratio
