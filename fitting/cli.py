@@ -62,7 +62,7 @@ def add_fit_command(subparsers) -> argparse.ArgumentParser:
         metavar="NAME",
         help="parameters to fit, as a comma list (friction,G_star) or separate words "
         "(friction G_star: then put [SCENE] DATA before --params, which takes every word up to "
-        "the next option); from C_A C_H f0 friction K G_star w lambda radius density",
+        "the next option); from C_A C_H f0 friction K G_star w p_y lambda radius density",
     )
     p.add_argument(
         "-o", "--output", metavar="FIT.json", help="write the result as JSON (atomically)"

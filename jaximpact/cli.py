@@ -42,7 +42,8 @@ SECTION_OF = {
     "friction": "contact",
     "lambda": "model",
     "G_star": "contact",  # model.tangential = "mindlin"
-    "w": "contact",  # model.normal = "dmt"
+    "w": "contact",  # model.normal = "dmt", "jkr", "thornton_ning"
+    "p_y": "contact",  # model.normal = "thornton_ning"
 }
 PAPER_IMPACTS = {
     "speed": [1.66] * 3,

@@ -273,9 +273,9 @@ def fit(
     - `scene`: the `jaximpact.Scene`; it gives every parameter not fitted and, unless
       `initial` says otherwise, the starting values of the fitted ones.
     - `observations`: an `Observations` or the path of a data file (wide or long CSV).
-    - `params`: names to fit, from ``C_A, C_H, f0, friction, K, G_star, w, lambda, radius,
-      density`` (``G_star`` with ``model.tangential = "mindlin"``, ``w`` with the DMT and
-      JKR normal laws).
+    - `params`: names to fit, from ``C_A, C_H, f0, friction, K, G_star, w, p_y, lambda,
+      radius, density`` (``G_star`` with ``model.tangential = "mindlin"``, ``w`` with the
+      DMT, JKR and Thornton-Ning normal laws, ``p_y`` with Thornton-Ning's).
     - `initial`: starting values ``{name: value}`` (SI) overriding the scene's.
     - `solver`: ``"lm"`` (Levenberg-Marquardt, default), ``"adam"`` or ``"lbfgs"`` (optax).
     - `starts`: number of starts: the initial guess, then a Latin-hypercube spread of

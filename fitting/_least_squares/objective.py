@@ -70,7 +70,8 @@ FITTABLE = {
     "friction": ("contact", "friction"),
     "K": ("contact", "K"),
     "G_star": ("contact", "G_star"),  # with model.tangential = "mindlin"
-    "w": ("contact", "w"),  # work of adhesion, with model.normal = "dmt"
+    "w": ("contact", "w"),  # work of adhesion, with model.normal = "dmt", "jkr", ...
+    "p_y": ("contact", "p_y"),  # limiting contact pressure, with "thornton_ning"
     "lambda": ("model", "lambda_"),
     "radius": ("particle", "radius"),
     "density": ("particle", "density"),
@@ -132,12 +133,17 @@ def check_names(params: Sequence[str], scene: jaximpact.Scene | None = None) -> 
         )
     if scene is not None and "w" in params and scene.model.normal == "brach_dunn":
         raise FitError(
-            'w (work of adhesion) is used only with model.normal = "dmt" or "jkr" (the scene '
-            'has "brach_dunn"); the Brach-Dunn ring takes f0'
+            'w (work of adhesion) is used only with model.normal = "dmt", "jkr" or '
+            '"thornton_ning" (the scene has "brach_dunn"); the Brach-Dunn ring takes f0'
         )
     if scene is not None and "f0" in params and scene.model.normal != "brach_dunn":
         raise FitError(
             f"f0 is the Brach-Dunn ring's; the {scene.model.normal} law takes w (work of adhesion)"
+        )
+    if scene is not None and "p_y" in params and scene.model.normal != "thornton_ning":
+        raise FitError(
+            'p_y (limiting contact pressure) is used only with model.normal = "thornton_ning" '
+            f'(the scene has "{scene.model.normal}")'
         )
     return params
 

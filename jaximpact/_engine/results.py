@@ -47,7 +47,8 @@ class ImpactResult(eqx.Module):
     it never does). For a captured impact ``vn_out = cor_n = 0`` and ``rebound_angle_deg`` is
     NaN; ``vt_out`` and ``omega_out`` are the values when capture was declared. A failed impact
     has NaN outputs. The energy ledger (J): ``energy_in - energy_out`` equals the sum of the
-    four losses. ``steps`` counts accepted and rejected solver steps.
+    four losses (five with Thornton-Ning's ``loss_plastic``). ``steps`` counts accepted and
+    rejected solver steps.
     """
 
     status: jax.Array
@@ -73,6 +74,9 @@ class ImpactResult(eqx.Module):
     # With a [target] sphere (and rotation): its spin at the end (rad/s, signed as omega2 in
     # the scene); else None.
     omega2_out: jax.Array | None = None
+    # With model.normal = "thornton_ning": the energy yield took (J), a fifth loss of the
+    # ledger; else None.
+    loss_plastic: jax.Array | None = None
 
     @property
     def status_names(self) -> np.ndarray:

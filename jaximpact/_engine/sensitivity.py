@@ -19,7 +19,8 @@ _SECTIONS = {
     "radius": ("particle", "radius"), "density": ("particle", "density"),
     "lambda": ("model", "lambda_"),
     "G_star": ("contact", "G_star"),  # model.tangential = "mindlin" only
-    "w": ("contact", "w"),  # model.normal = "dmt" or "jkr" only
+    "w": ("contact", "w"),  # model.normal = "dmt", "jkr" or "thornton_ning" only
+    "p_y": ("contact", "p_y"),  # model.normal = "thornton_ning" only
     # a second sphere ([target]) only
     "radius2": ("target", "radius"),
     "density2": ("target", "density"),

@@ -57,8 +57,10 @@ def scene_parameters(scene: Scene) -> dict:
     }
     if scene.model.tangential == "mindlin":
         params["G_star"] = scene.contact.G_star
-    if scene.model.normal in ("dmt", "jkr"):
+    if scene.model.normal in ("dmt", "jkr", "thornton_ning"):
         params["w"] = scene.contact.w
+    if scene.model.normal == "thornton_ning":
+        params["p_y"] = scene.contact.p_y
     if scene.target is not None:
         params.update(
             radius2=scene.target.radius, density2=scene.target.density, omega2=scene.target.omega0
@@ -172,6 +174,7 @@ def _scaled(params, speed, angle_deg, omega0):
         G_star=params.get("G_star"),
         w_adhesion=params.get("w"),
         target=target,
+        p_yield=params.get("p_y"),
     )
     return p, units
 
@@ -230,10 +233,10 @@ JKR_STUCK_TIME = 1e-10
 
 def _jkr_stuck(terms: dyn.Terms, p: ScaledParameters):
     """Captured at first touch: the JKR barrier ``V(n_c)`` exceeds the normal energy ``1/2``."""
-    return dyn.jkr_barrier(p) > 0.5
+    return dyn.jkr_barrier(terms, p, 0.0 if terms.plastic else None) > 0.5
 
 
-def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None) -> dict:
+def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None, peak=None) -> dict:
     """The last stretch of a JKR contact, from the separation level ``mu (d_c + floor)`` down
     to the snap-off overlap ``n_c``, in closed form: the potential's change there is exact
     (``V`` is closed-form), the Hertzian damping's work is taken at the mean of the Hertzian
@@ -246,17 +249,18 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None) -> dict:
     motion (exact: the force is minus the gradient of the spring's energy); the contact's
     radius does not vanish at the snap-off, so the spring still holds ``k_t(n_c) xi^2 / 2``
     when the contact breaks: that energy is lost (``spring_lost``, in the ledger's
-    ``loss_friction``), as DEM codes drop the tangential history when a contact ends."""
-    n_sep = dyn.separation(terms, p)
-    n_c, a_c = dyn.jkr_snap_off(p)
-    a_sep = dyn.jkr_contact_radius(terms, p, jnp.full_like(ndot, n_sep))
-    barrier = dyn.jkr_barrier(p)
-    climb = barrier - laws.jkr_potential(a_sep, p.radius, p.K, p.w_adhesion)
+    ``loss_friction``), as DEM codes drop the tangential history when a contact ends.
+
+    ``peak``: Thornton-Ning's peak overlap, which selects the curve of the stretch."""
+    r = dyn.jkr_curve(terms, p, peak)[0]
+    n_sep = dyn.separation(terms, p, peak)
+    n_c, a_c = dyn.jkr_snap_off(terms, p, peak)
+    a_sep = dyn.jkr_contact_radius(terms, p, jnp.full_like(ndot, n_sep), peak)
+    barrier = dyn.jkr_barrier(terms, p, peak)
+    climb = barrier - laws.jkr_potential(a_sep, r, p.K, p.w_adhesion)
     width = n_sep - n_c
     speed = jnp.abs(ndot)
-    hertz = -0.5 * (
-        laws.jkr_hertz_force(a_sep, p.radius, p.K) + laws.jkr_hertz_force(a_c, p.radius, p.K)
-    )
+    hertz = -0.5 * (laws.jkr_hertz_force(a_sep, r, p.K) + laws.jkr_hertz_force(a_c, r, p.K))
     damping = hertz * p.C_H * speed * width
     energy = ndot**2 - 2.0 * (climb + damping)
     spring_lost = None
@@ -285,17 +289,20 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None) -> dict:
     return shell
 
 
-def _shell_exit(terms: dyn.Terms, p: ScaledParameters, ndot, spring=None, xi=None) -> dict:
+def _shell_exit(
+    terms: dyn.Terms, p: ScaledParameters, ndot, spring=None, xi=None, peak=None
+) -> dict:
     """The separation through the shell below the floor, in closed form (see ``_shell_entry``).
 
     ``ndot`` (< 0) is the normal velocity at the floor; returns the velocity at ``n = 0`` and
     ``ok = False`` where the normal energy runs out inside the shell (then a capture).
     ``spring``: the Mindlin spring's energy at the floor, which its normal force returns to the
     normal motion in the shell (its tangential impulse there, ``O(floor^2.5)``, is left out);
-    ``xi``: the spring's displacement, for JKR's stretch (:func:`_jkr_exit`).
+    ``xi``: the spring's displacement, for JKR's stretch (:func:`_jkr_exit`); ``peak``:
+    Thornton-Ning's peak overlap.
     """
     if terms.jkr:
-        return _jkr_exit(terms, p, ndot, xi)
+        return _jkr_exit(terms, p, ndot, xi, peak)
     eps = terms.contact_floor
     sr = jnp.sqrt(p.radius)
     speed = jnp.abs(ndot)
@@ -439,7 +446,8 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
         # without losses: captured at first touch (the event fires at JKR_STUCK_TIME).
         def cond(t, y, args, **kw):
             free = jnp.minimum(
-                y["n"] - dyn.separation(terms, args), dyn.capture_margin(terms, args, y)
+                y["n"] - dyn.separation(terms, args, y.get("peak")),
+                dyn.capture_margin(terms, args, y),
             )
             return jnp.where(_jkr_stuck(terms, args), JKR_STUCK_TIME - t, free)
 
@@ -584,11 +592,12 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     finite = jnp.all(jnp.stack([jnp.isfinite(v) for v in jax.tree_util.tree_leaves(y)]))
     event_hit = sol.result == diffrax.RESULTS.event_occurred
     spring = dyn.tangential_energy(terms, p, y) if terms.mindlin else None
-    exit_ = _shell_exit(terms, p, y["ndot"], spring, y["xi"] if terms.mindlin else None)
+    peak = y.get("peak")
+    exit_ = _shell_exit(terms, p, y["ndot"], spring, y["xi"] if terms.mindlin else None, peak)
     if terms.adhesion:
         # At the event one of the two is ~0 and the other positive. A sphere whose normal
         # energy runs out inside the shell below the floor is captured too.
-        separation = dyn.separation(terms, p)
+        separation = dyn.separation(terms, p, peak)
         captured = event_hit & (
             (y["n"] - separation > dyn.capture_margin(terms, p, y)) | ~exit_["ok"]
         )
@@ -610,7 +619,9 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
             y["loss_friction"] = y["loss_friction"] + jnp.where(
                 separated, exit_["loss_friction"], 0.0
             )
-    y["n"] = jnp.where(separated, 0.0, y["n"])
+    # Out of contact: at the touch point of the curve it left (0; Thornton-Ning: its shift),
+    # where the normal potential is zero.
+    y["n"] = jnp.where(separated, dyn.jkr_curve(terms, p, peak)[1], y["n"])
     y["ndot"] = jnp.where(separated, exit_["ndot"], y["ndot"])
     shell_time = entry["time"] + jnp.where(separated, exit_["time"], 0.0)
     if terms.ledger:
@@ -670,6 +681,11 @@ def _output_fields(terms: dyn.Terms, prob: _Problem, omega0, y, t_end, rebound, 
         k: (y[k] * e_unit if k in y else jnp.zeros((), dtype))
         for k in ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
     }
+    if terms.plastic:  # Thornton-Ning's yield: a field of ImpactResult only
+        plastic = laws.thornton_ning_plastic_loss(
+            y["peak"], p.radius, p.K, p.w_adhesion, p.a_yield, p.p_yield
+        )
+        losses["loss_plastic"] = plastic * e_unit if terms.ledger else nan
     out = dict(
         vn_out=vn_out,
         vt_out=vt_out,
@@ -1241,6 +1257,7 @@ _NOMINAL = {
     "lambda": 0.0,
     "G_star": 2e10,
     "w": 0.1,
+    "p_y": 1e9,
     "radius2": 21.7e-6,
     "density2": 2500.0,
     "omega2": 0.0,

@@ -37,6 +37,7 @@ ALLOWED = {
         "friction",
         "G_star",
         "w",
+        "p_y",
     },
     "model": {
         "rotation",
@@ -64,7 +65,9 @@ ALLOWED = {
 # [priors]: a Bayesian prior per parameter that `fitting` may sample (`fitting.sample_posterior`,
 # `jaximpact fit --posterior`), as text "loguniform:LO:HI" or "normal:MU:SD" (SI units); the
 # simulator ignores them. The spec itself is checked by `fitting` (it names the scene key).
-PRIOR_NAMES = {"C_A", "C_H", "f0", "friction", "K", "G_star", "w", "lambda", "radius", "density"}
+PRIOR_NAMES = {
+    "C_A", "C_H", "f0", "friction", "K", "G_star", "w", "p_y", "lambda", "radius", "density"
+}  # fmt: skip
 ALLOWED["priors"] = PRIOR_NAMES
 REQUIRED_SECTIONS = ("particle", "contact")
 
@@ -259,6 +262,7 @@ def _contact(data: dict, particle: Particle) -> tuple:
         friction=number("contact", "friction", 0.0),
         G_star=G_star,
         w=number("contact", "w", 0.0),
+        p_y=number("contact", "p_y", 0.0),
     )
     return contact, f0, G_star
 
@@ -282,7 +286,13 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
         )
     if normal == "brach_dunn" and "w" in c:
         raise SceneError(
-            'contact.w (work of adhesion) is used only with model.normal = "dmt" or "jkr"'
+            'contact.w (work of adhesion) is used only with model.normal = "dmt", "jkr" or '
+            '"thornton_ning"'
+        )
+    if normal != "thornton_ning" and "p_y" in c:
+        raise SceneError(
+            "contact.p_y (limiting contact pressure) is used only with model.normal = "
+            '"thornton_ning"'
         )
     strength = contact.f0 if normal == "brach_dunn" else contact.w
     model = Model(

@@ -97,6 +97,10 @@ def _particle_and_contact(scene, raw: dict, r, rho, K, mass) -> list[str]:
             "2 pi w r (DMT)" if m.normal == "dmt" else "1.5 pi w r (JKR)"
         )
         lines.append(f"  w                   {_g(c.w)} J/m^2  ({pull_off})")
+        if m.normal == "thornton_ning":
+            lines.append(
+                f"  p_y                 {_g(c.p_y)} Pa  (limiting contact pressure: yield)"
+            )
     else:
         lines.append(f"  f0                  {_g(c.f0)} N/m")
     for name in ("A", "H"):
@@ -188,6 +192,11 @@ def _terms_lines(terms, m) -> list[str]:
     strength = "f0 = 0" if m.normal == "brach_dunn" else "w = 0"
     if terms.ring:
         used.append("adhesion ring force and adhesion damping")
+    elif terms.plastic:
+        used.append(
+            "Thornton-Ning: JKR adhesion, plastic yield at p_y, elastic unloading on a flatter "
+            "JKR curve (peak overlap as a state; the snap-off and yield losses in the ledger)"
+        )
     elif terms.jkr:
         used.append("JKR adhesion (contact until the snap-off overlap; its loss in the ledger)")
     elif terms.adhesion:

@@ -11,7 +11,9 @@ State (a dict of scalars), by what the terms need:
 - the adhesion ring (Brach-Dunn normal law with adhesion): ``loss_adhesion_damping``;
 - tangential: ``vt``, ``loss_friction`` and ``slide_time`` (the time until rolling first starts);
 - rotation: ``w``; rolling moments: ``loss_rolling``;
-- the Mindlin tangential spring (``Terms.mindlin``): ``xi``, its elastic displacement.
+- the Mindlin tangential spring (``Terms.mindlin``): ``xi``, its elastic displacement;
+- Thornton-Ning (``Terms.plastic``): ``peak`` is part of the motion (the law's memory of
+  yield; the energy yield took is a closed form of it, ``laws.thornton_ning_plastic_loss``).
 
 With ``Terms.ledger = False`` (``[solver] outputs = "rebound"``) only the motion ``n, ndot, vt,
 w`` is integrated: 1.22-1.33x the impacts/s of the full outputs with loop kernels
@@ -50,8 +52,10 @@ class Terms(eqx.Module):
     # friction law; cap_width is its regularization width at the Coulomb cap (fraction of it).
     mindlin: bool = eqx.field(static=True, default=False)
     cap_width: float = eqx.field(static=True, default=0.0)
-    # model.normal: "brach_dunn" (the adhesion ring), "dmt" (constant adhesion 2 pi w r) or
-    # "jkr" (the JKR force of the contact radius; contact until the snap-off overlap n_c < 0).
+    # model.normal: "brach_dunn" (the adhesion ring), "dmt" (constant adhesion 2 pi w r),
+    # "jkr" (the JKR force of the contact radius; contact until the snap-off overlap n_c < 0)
+    # or "thornton_ning" (JKR that yields at the limiting pressure p_y, then unloads along a
+    # flatter JKR curve: see laws.thornton_ning_curve).
     normal: str = eqx.field(static=True, default="brach_dunn")
     # A second sphere instead of the wall: its spin w2 is a state (with rotation).
     target: bool = eqx.field(static=True, default=False)
@@ -67,8 +71,14 @@ class Terms(eqx.Module):
 
     @property
     def jkr(self):
-        """The JKR law (with ``w = 0`` it is Hertz's, and Hertz's terms are compiled)."""
-        return self.adhesion and self.normal == "jkr"
+        """The JKR law (with ``w = 0`` it is Hertz's, and Hertz's terms are compiled), also
+        as Thornton-Ning's elastic branches."""
+        return self.adhesion and self.normal in ("jkr", "thornton_ning")
+
+    @property
+    def plastic(self):
+        """Thornton-Ning: the JKR curve the contact follows depends on its peak overlap."""
+        return self.adhesion and self.normal == "thornton_ning"
 
     @property
     def adhesion_loss(self):
@@ -92,7 +102,8 @@ def initial_state(terms: Terms, vt0, w0, dtype, w2=0.0):
             if terms.has_moments:
                 y["loss_rolling"] = zero
     if not terms.ledger:
-        y = {k: v for k, v in y.items() if k in MOTION}
+        motion = MOTION + (("peak",) if terms.plastic else ())
+        y = {k: v for k, v in y.items() if k in motion}
     return y
 
 
@@ -150,40 +161,55 @@ def adhesion_potential(terms: Terms, p: ScaledParameters, n):
     return laws.adhesion_potential(n, p.radius, p.f0)
 
 
-def jkr_contact_radius(terms: Terms, p: ScaledParameters, n):
+def jkr_curve(terms: Terms, p: ScaledParameters, peak=None):
+    """``(r, s)``: the radius and overlap shift of the JKR curve the contact follows, the
+    particle's own ``(r, 0)``, or with Thornton-Ning the curve of the peak overlap so far
+    (``laws.thornton_ning_curve``; ``peak=None``: the elastic curve of first touch)."""
+    if not terms.plastic or peak is None:
+        return p.radius, 0.0
+    return laws.thornton_ning_curve(peak, p.radius, p.K, p.w_adhesion, p.a_yield, p.p_yield)
+
+
+def jkr_contact_radius(terms: Terms, p: ScaledParameters, n, peak=None):
     """The JKR contact radius (continued below the separation level, see ``separation``)."""
     E = 0.75 * p.K
-    return laws.jkr_contact_radius(n, p.radius, E, p.w_adhesion, terms.contact_floor)
+    r, s = jkr_curve(terms, p, peak)
+    return laws.jkr_contact_radius(n - s, r, E, p.w_adhesion, terms.contact_floor)
 
 
-def jkr_snap_off(p: ScaledParameters):
-    """``(n_c, a_c)``: the JKR snap-off overlap (< 0) and contact radius."""
-    lam, mu = laws.jkr_scales(p.radius, 0.75 * p.K, p.w_adhesion)
-    return laws.JKR_SNAP_OFF * mu, lam * math.pi ** (1.0 / 3.0) / 2.0
+def jkr_snap_off(terms: Terms, p: ScaledParameters, peak=None):
+    """``(n_c, a_c)``: the JKR snap-off overlap (< 0 without plastic shift) and contact
+    radius."""
+    r, s = jkr_curve(terms, p, peak)
+    lam, mu = laws.jkr_scales(r, 0.75 * p.K, p.w_adhesion)
+    return s + laws.JKR_SNAP_OFF * mu, lam * math.pi ** (1.0 / 3.0) / 2.0
 
 
-def jkr_barrier(p: ScaledParameters):
+def jkr_barrier(terms: Terms, p: ScaledParameters, peak=None):
     """``V(n_c)``: the JKR potential at the snap-off, the energy a sphere in contact must have
-    to leave and the elastic impact's loss."""
-    _, a_c = jkr_snap_off(p)
-    return laws.jkr_potential(a_c, p.radius, p.K, p.w_adhesion)
+    to leave and the elastic impact's loss (of the curve it follows)."""
+    r, _ = jkr_curve(terms, p, peak)
+    _, a_c = jkr_snap_off(terms, p, peak)
+    return laws.jkr_potential(a_c, r, p.K, p.w_adhesion)
 
 
-def separation(terms: Terms, p: ScaledParameters):
+def separation(terms: Terms, p: ScaledParameters, peak=None):
     """The overlap at which the integration stops for a separation: the contact floor, or
-    with JKR the floor above the snap-off, ``mu (d_c + floor)``; a closed form crosses the
+    with JKR the floor above the snap-off, ``s + mu (d_c + floor)``; a closed form crosses the
     rest (``simulate._shell_exit``)."""
     if terms.jkr:
-        _, mu = laws.jkr_scales(p.radius, 0.75 * p.K, p.w_adhesion)
-        return mu * (laws.JKR_SNAP_OFF + terms.contact_floor)
+        r, s = jkr_curve(terms, p, peak)
+        _, mu = laws.jkr_scales(r, 0.75 * p.K, p.w_adhesion)
+        return s + mu * (laws.JKR_SNAP_OFF + terms.contact_floor)
     return terms.contact_floor
 
 
-def normal_potential(terms: Terms, p: ScaledParameters, n):
-    """``V(n)``, the potential of the elastic and adhesive normal forces (0 at first touch)."""
+def normal_potential(terms: Terms, p: ScaledParameters, n, peak=None):
+    """``V(n)``, the potential of the elastic and adhesive normal forces (0 at first touch;
+    with Thornton-Ning, of the curve the peak overlap selects: 0 where it starts)."""
     if terms.jkr:
-        a = jkr_contact_radius(terms, p, n)
-        return laws.jkr_potential(a, p.radius, p.K, p.w_adhesion)
+        a = jkr_contact_radius(terms, p, n, peak)
+        return laws.jkr_potential(a, jkr_curve(terms, p, peak)[0], p.K, p.w_adhesion)
     v = laws.hertz_potential(n, p.radius, p.K)
     if terms.adhesion:
         v = v + adhesion_potential(terms, p, n)
@@ -193,7 +219,7 @@ def normal_potential(terms: Terms, p: ScaledParameters, n):
 def normal_energy(terms: Terms, p: ScaledParameters, y):
     """``ndot^2/2 + V(n)``: it never increases without spin, and ``< 0`` means capture
     (JKR: below the snap-off barrier ``V(n_c) > 0``)."""
-    return 0.5 * y["ndot"] ** 2 + normal_potential(terms, p, y["n"])
+    return 0.5 * y["ndot"] ** 2 + normal_potential(terms, p, y["n"], y.get("peak"))
 
 
 def capture_margin(terms: Terms, p: ScaledParameters, y):
@@ -207,8 +233,8 @@ def capture_margin(terms: Terms, p: ScaledParameters, y):
     """
     kinetic = 0.5 * y["ndot"] ** 2
     if terms.jkr:  # the barrier V(n_c) a leaving sphere must still climb
-        barrier = jkr_barrier(p)
-        v = normal_potential(terms, p, y["n"])
+        barrier = jkr_barrier(terms, p, y.get("peak"))
+        v = normal_potential(terms, p, y["n"], y.get("peak"))
         return (kinetic + v - barrier) / (kinetic + jnp.abs(v) + barrier)
     hertz = laws.hertz_potential(y["n"], p.radius, p.K)
     adhesion = adhesion_potential(terms, p, y["n"])  # <= 0
@@ -251,17 +277,19 @@ def spring_stiffness(terms: Terms, p: ScaledParameters, n):
     return k_t, laws.mindlin_stiffness_slope(n, p.radius, p.G_star, floor)
 
 
-def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w):
-    """The normal forces (and the ring's peeling moment ``M_A``, or None)."""
+def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w, peak=None):
+    """The normal forces (and the ring's peeling moment ``M_A``, or None); ``peak`` selects
+    Thornton-Ning's curve."""
     f = {}
     f["F_H"] = laws.hertz_force(n, p.radius, p.K)
     f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
     F_n = f["F_H"] + f["F_HD"]
     M_A = None
     if terms.jkr:  # the Hertzian part (damped as Hertz's force) and the adhesive part
-        a = jkr_contact_radius(terms, p, n)
+        a = jkr_contact_radius(terms, p, n, peak)
         f["a"] = a
-        f["F_H"] = laws.jkr_hertz_force(a, p.radius, p.K)
+        f["r_curve"] = jkr_curve(terms, p, peak)[0]
+        f["F_H"] = laws.jkr_hertz_force(a, f["r_curve"], p.K)
         f["F_HD"] = f["F_H"] * p.C_H * ndot
         f["F_A"] = laws.jkr_adhesion_force(a, p.K, p.w_adhesion)
         F_n = f["F_H"] + f["F_HD"] + f["F_A"]
@@ -297,13 +325,13 @@ def contact_loads(terms: Terms, p: ScaledParameters, y):
     """Every force and moment on the sphere at state ``y`` (a dict; absent terms are left out)."""
     n, ndot = y["n"], y["ndot"]
     spin, w = spins(terms, y)  # w: relative to the wall or the second sphere
-    f, M_A = _normal_loads(terms, p, n, ndot, w)
+    f, M_A = _normal_loads(terms, p, n, ndot, w, y.get("peak"))
     if not terms.tangential:
         return f
     M = jnp.zeros_like(n)
     if terms.has_moments:
         if terms.rolling_moments == "analytical" and terms.jkr:
-            f["M_H"] = laws.jkr_rolling_moment(f["a"], w, p.radius, p.K, p.C_H)
+            f["M_H"] = laws.jkr_rolling_moment(f["a"], w, f["r_curve"], p.K, p.C_H)
             f["M_A"] = M_A
             M = f["M_H"]
         elif terms.rolling_moments == "analytical":

@@ -303,3 +303,95 @@ def jkr_rolling_moment(a, w_spin, radius, K, C_H):
     """Hertzian rolling-resistance moment with the JKR contact radius, ``-(K/5) C_H a^5 w / r``
     (eq. 18's ``a^4 sqrt(n/r)`` is ``a^5 / r`` for Hertz's ``a = sqrt(r n)``)."""
     return -(K / 5.0) * C_H * a**5 / radius * w_spin
+
+
+# --- Thornton & Ning (1998): JKR with plastic yield -------------------------------------
+# Reconstructed from secondary sources (docs/thornton_ning.md: the paper itself was not
+# available): below the yield radius the contact is elastic JKR; beyond it the centre
+# pressure is capped at the limiting pressure ``p_y`` and the force grows as
+# ``P = P_y + pi p_y (a^2 - a_y^2) - sqrt(8 pi w E) a_y (sqrt(a) - sqrt(a_y))`` (repulsive
+# positive) along the JKR geometry of the particle's radius; the contact unloads (and
+# reloads below the peak) elastically along a JKR curve of a larger radius ``R_p`` through
+# the peak, shifted in overlap. So the law at every state is a JKR curve: ``(r, 0)`` until
+# yield, ``(R_p, s)`` after it, both functions of the peak overlap alone.
+
+
+def thornton_ning_yield_radius(radius, E, w, p_yield, iterations=16):
+    """The contact radius ``a_y`` at which the JKR centre pressure reaches ``p_y`` (TN eq. 65),
+    ``p_y = 2 E a / (pi r) - sqrt(2 w E / (pi a))``. In the JKR scales (``a = lam y^2``,
+    pressure over ``(E^2 w / r)^(1/3)``) it is the positive root of ``y^3 - (pi P / 2) y -
+    sqrt(pi / 2) = 0``, found by Newton's method from ``sqrt(pi P/2) + (pi/2)^(1/6)``, above
+    the root, where the cubic is convex and increasing: the iterates fall monotonically."""
+    lam = (w * radius * radius / E) ** (1.0 / 3.0)
+    pressure = p_yield / (E * E * w / radius) ** (1.0 / 3.0)
+    c1 = 0.5 * math.pi * pressure
+    c0 = math.sqrt(0.5 * math.pi)
+    y = jnp.sqrt(c1) + c0 ** (1.0 / 3.0)
+    for _ in range(iterations):
+        y = y - (y**3 - c1 * y - c0) / (3.0 * y * y - c1)
+    return lam * y * y
+
+
+def jkr_force(a, radius, K, w):
+    """The JKR force ``K a^3 / r - sqrt(6 pi w K a^3)`` (repulsive positive)."""
+    return K * a**3 / radius - jkr_adhesion_force(a, K, w)
+
+
+def thornton_ning_loading_force(a, a_yield, radius, K, w, p_yield):
+    """The plastic loading force at contact radius ``a >= a_y`` (repulsive positive)."""
+    E = 0.75 * K
+    return (
+        jkr_force(a_yield, radius, K, w)
+        + math.pi * p_yield * (a * a - a_yield * a_yield)
+        - jnp.sqrt(8.0 * math.pi * w * E) * a_yield * (jnp.sqrt(a) - jnp.sqrt(a_yield))
+    )
+
+
+def thornton_ning_curve(peak, radius, K, w, a_yield, p_yield):
+    """``(R_p, s)``: the radius and overlap shift of the JKR curve the contact follows after
+    reaching the peak overlap ``peak``: ``(r, 0)`` while the peak is elastic; beyond yield
+    the curve through the peak's force ``P_m`` at its contact radius ``a_m``, ``R_p = K a_m^3
+    / (P_m + sqrt(6 pi w K a_m^3))`` (continuity of the force) and ``s = peak - (a_m^2 / R_p
+    - sqrt(2 pi w a_m / E))``. ``R_p`` and ``s`` are continuous at yield."""
+    E = 0.75 * K
+    a_m = jkr_contact_radius(peak, radius, E, w)
+    plastic = a_m > a_yield
+    a_p = jnp.where(plastic, a_m, 2.0 * a_yield)  # double where: finite slopes when elastic
+    load = thornton_ning_loading_force(a_p, a_yield, radius, K, w, p_yield)
+    r_p = K * a_p**3 / (load + jkr_adhesion_force(a_p, K, w))
+    shift = peak - (a_p * a_p / r_p - jnp.sqrt(2.0 * math.pi * w * a_p / E))
+    return jnp.where(plastic, r_p, radius), jnp.where(plastic, shift, 0.0)
+
+
+def thornton_ning_plastic_loss(peak, radius, K, w, a_yield, p_yield):
+    """The energy yield has taken once the contact reached the peak overlap ``peak``: the
+    work of the loading law up to the peak less the potential the unloading curve holds there
+    (both zero at first touch; a contact that yields before it touches, ``a_y`` below JKR's
+    zero-overlap radius, is outside the law's range: the scene refuses it, and here its work
+    starts at first touch). The plastic part of the work, ``int P dn`` over ``a_y..a_m``
+    with ``P = al + be a^2 - ga sqrt(a)`` and ``dn/da = 2 a / r - (ka / 2) a^(-1/2)`` (``ka =
+    sqrt(2 pi w / E)``), is a polynomial in ``sqrt(a)``."""
+    E = 0.75 * K
+    a_m = jkr_contact_radius(peak, radius, E, w)
+    plastic = a_m > a_yield
+    a_p = jnp.where(plastic, a_m, 2.0 * a_yield)
+    c = jnp.sqrt(8.0 * math.pi * w * E)
+    ka = jnp.sqrt(2.0 * math.pi * w / E)
+    al = jkr_force(a_yield, radius, K, w) - math.pi * p_yield * a_yield**2 + c * a_yield**1.5
+    be = math.pi * p_yield
+    ga = c * a_yield
+
+    def primitive(a):
+        return (
+            al / radius * a * a
+            - al * ka * jnp.sqrt(a)
+            + be / (2.0 * radius) * a**4
+            - (be * ka / 5.0 + 4.0 * ga / (5.0 * radius)) * a**2.5
+            + 0.5 * ga * ka * a
+        )
+
+    a_start = jnp.maximum(a_yield, JKR_TOUCH * jkr_scales(radius, E, w)[0])
+    work = jkr_potential(a_start, radius, K, w) + primitive(a_p) - primitive(a_start)
+    r_p, _ = thornton_ning_curve(peak, radius, K, w, a_yield, p_yield)
+    stored = jkr_potential(a_p, jnp.where(plastic, r_p, radius), K, w)
+    return jnp.where(plastic, work - stored, 0.0)

@@ -21,7 +21,7 @@ RollingMoments = Literal["none", "analytical", "lambda"]
 FrictionLoad = Literal["net", "hertz"]
 TANGENTIAL_MODELS = ("rigid", "mindlin")
 #: The normal contact laws of ``model.normal`` (docs/physics.md, "Normal laws").
-NORMAL_LAWS = ("brach_dunn", "dmt", "jkr")
+NORMAL_LAWS = ("brach_dunn", "dmt", "jkr", "thornton_ning")
 SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
 
 
@@ -153,7 +153,10 @@ class Contact(eqx.Module):
     - `w`: work of adhesion (J/m^2, >= 0) of the DMT and JKR normal laws (``model.normal =
       "dmt"`` or ``"jkr"``): the energy per unit area that separates the two surfaces,
       ``w = 2 gamma`` for one material of surface energy ``gamma``; the pull-off force is
-      ``2 pi w r`` (DMT) or ``1.5 pi w r`` (JKR).
+      ``2 pi w r`` (DMT) or ``1.5 pi w r`` (JKR, Thornton-Ning).
+    - `p_y`: limiting contact pressure (Pa, > 0) of the Thornton-Ning law (``model.normal =
+      "thornton_ning"``): the contact yields where the JKR pressure at its centre reaches it
+      (0, the default, means "not given").
     """
 
     K: jax.Array = eqx.field(converter=_numbers("contact.K"))
@@ -163,9 +166,10 @@ class Contact(eqx.Module):
     friction: jax.Array = eqx.field(converter=_numbers("contact.friction"))
     G_star: jax.Array = eqx.field(converter=_numbers("contact.G_star"), default=0.0)
     w: jax.Array = eqx.field(converter=_numbers("contact.w"), default=0.0)
+    p_y: jax.Array = eqx.field(converter=_numbers("contact.p_y"), default=0.0)
 
     def __check_init__(self):
-        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star", "w"):
+        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star", "w", "p_y"):
             check_input(f"contact.{name}", name, getattr(self, name))
 
 
@@ -188,7 +192,10 @@ class Model(eqx.Module):
       and the constant DMT adhesion ``2 pi w r`` while in contact, from ``contact.w``; no ring,
       so no adhesion damping and no peeling moment) or ``"jkr"`` (the JKR force of the contact
       radius, Hertzian damping of its Hertzian part ``K a^3 / r``, contact until the snap-off
-      overlap ``< 0``); docs/physics.md, "Normal laws".
+      overlap ``< 0``) or ``"thornton_ning"`` (JKR until the centre pressure reaches
+      ``contact.p_y``, then plastic loading and elastic JKR unloading along a flatter curve;
+      needs ``contact.w > 0`` and ``contact.p_y > 0``, rigid tangential contact only);
+      docs/physics.md, "Normal laws".
     """
 
     rotation: bool = eqx.field(static=True, default=True)
@@ -203,8 +210,16 @@ class Model(eqx.Module):
         if self.normal not in NORMAL_LAWS:
             raise SceneError(
                 f"model.normal must be one of {', '.join(repr(n) for n in NORMAL_LAWS)}, got "
-                f"{self.normal!r} (Thornton-Ning is not in the engine yet: "
-                "docs/open_points.md)"
+                f"{self.normal!r}"
+            )
+        if self.normal == "thornton_ning" and self.tangential == "mindlin":
+            raise SceneError(
+                'model.normal = "thornton_ning" works with model.tangential = "rigid" only, '
+                'got "mindlin"'
+            )
+        if self.normal == "thornton_ning" and not self.adhesion:
+            raise SceneError(
+                'model.normal = "thornton_ning" needs model.adhesion = true (its law is JKR\'s)'
             )
         if self.tangential not in TANGENTIAL_MODELS:
             raise SceneError(
@@ -400,11 +415,43 @@ class Scene(eqx.Module):
     target: Target | None = None
 
     def __check_init__(self):
+        if self.model.normal == "thornton_ning":
+            check_range(
+                "contact.w (needed by model.normal = 'thornton_ning')",
+                self.contact.w,
+                positive=True,
+            )
+            check_range(
+                "contact.p_y (needed by model.normal = 'thornton_ning')",
+                self.contact.p_y,
+                positive=True,
+            )
+            self._check_yield_after_touch()
         if self.model.tangential == "mindlin":
             check_range(
                 "contact.G_star (needed by model.tangential = 'mindlin')",
                 self.contact.G_star,
                 positive=True,
+            )
+
+    def _check_yield_after_touch(self):
+        """Thornton-Ning: the contact must not yield before it forms, i.e. ``p_y`` above the
+        JKR centre pressure at first touch, ``0.5875 (E*^2 w / r)^(1/3)`` (at the zero-overlap
+        radius ``(2 pi w r^2 / E*)^(1/3)``; reduced radius with a target)."""
+        c, r = self.contact, self.particle.radius
+        if not all(_is_concrete(x) for x in (c.K, c.w, c.p_y, r)):
+            return
+        if self.target is not None:
+            r = r * self.target.radius / (r + self.target.radius)
+        E = 0.75 * np.asarray(c.K, float)
+        x0 = (2.0 * np.pi) ** (1.0 / 3.0)
+        touch = (2.0 / np.pi * x0 - np.sqrt(2.0 / np.pi / x0)) * (E * E * c.w / r) ** (1.0 / 3.0)
+        if np.any(np.asarray(c.p_y) <= touch):
+            raise SceneError(
+                f"contact.p_y must be above the JKR centre pressure at first touch, "
+                f"{float(np.max(touch)):.4g} Pa for this K, w and radius (got {_show(c.p_y)}): "
+                "below it the contact would yield before it forms, outside the Thornton-Ning "
+                "law's range"
             )
 
     def with_normal_law(self, law: str) -> "Scene":

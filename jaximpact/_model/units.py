@@ -10,6 +10,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from . import laws
+
 
 class HertzUnits(eqx.Module):
     """Length (m), time (s) and mass (kg) units of one impact."""
@@ -51,6 +53,9 @@ class ScaledParameters(eqx.Module):
     arm: jax.Array | None = None
     arm2: jax.Array | None = None
     inertia2: jax.Array | None = None
+    # Thornton-Ning: the limiting contact pressure and the yield radius it gives.
+    p_yield: jax.Array | None = None
+    a_yield: jax.Array | None = None
 
     @staticmethod
     def from_si(
@@ -67,6 +72,7 @@ class ScaledParameters(eqx.Module):
         G_star=None,
         w_adhesion=None,
         target=None,
+        p_yield=None,
     ):
         """``target``: ``(r1, m1, r2, m2)`` (SI) of a sphere-sphere impact, whose contact radius
         ``radius`` is the reduced one and mass unit ``u.mass`` the reduced mass."""
@@ -78,9 +84,15 @@ class ScaledParameters(eqx.Module):
             arm, arm2 = r1 / L, r2 / L
             inertia = inertia_factor * (m1 / m) * arm * arm
             inertia2 = inertia_factor * (m2 / m) * arm2 * arm2
+        K_scaled = K * L * T**2 / m
+        w_scaled = None if w_adhesion is None else w_adhesion * T**2 / m
+        a_yield = None
+        if p_yield is not None:  # a pressure scales as K
+            p_yield = p_yield * L * T**2 / m
+            a_yield = laws.thornton_ning_yield_radius(r, 0.75 * K_scaled, w_scaled, p_yield)
         return ScaledParameters(
             radius=r,
-            K=K * L * T**2 / m,
+            K=K_scaled,
             f0=f0 * T**2 / m,
             C_A=C_A * L / T,
             C_H=C_H * L / T,
@@ -88,8 +100,10 @@ class ScaledParameters(eqx.Module):
             lam=lam * T**2 / (m * L**2),
             inertia=inertia,
             G_star=None if G_star is None else G_star * L * T**2 / m,
-            w_adhesion=None if w_adhesion is None else w_adhesion * T**2 / m,
+            w_adhesion=w_scaled,
             arm=arm,
             arm2=arm2,
             inertia2=inertia2,
+            p_yield=p_yield,
+            a_yield=a_yield,
         )
