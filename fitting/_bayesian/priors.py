@@ -33,7 +33,8 @@ PRIOR_RANGES = {
     "friction": (1e-3, 1.5),
     "K": (1e8, 1e13),  # Pa
     "G_star": (1e6, 1e12),  # Pa (model.tangential = "mindlin")
-    "w": (1e-4, 1e2),  # J/m^2 (model.normal = "dmt")
+    "w": (1e-4, 1e2),  # J/m^2 (model.normal = "dmt", "jkr", "thornton_ning")
+    "p_y": (1e7, 1e11),  # Pa (model.normal = "thornton_ning"; metals' 0.1-10 GPa inside)
     "lambda": (1e-3, 1e2),
     "radius": (1e-7, 1e-1),  # m
     "density": (1e2, 3e4),  # kg/m^3
