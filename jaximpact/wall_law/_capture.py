@@ -69,6 +69,7 @@ SECTION_OF = {
     "friction": ("contact", "friction"),
     "G_star": ("contact", "G_star"),
     "w": ("contact", "w"),
+    "p_y": ("contact", "p_y"),
     "lambda": ("model", "lambda_"),
 }
 
@@ -148,13 +149,14 @@ def adhesion_speed(radius, density, K, f0, w=None, law="brach_dunn"):
     well of the normal potential ``V(n) = (2/5) K sqrt(r) n^2.5 - (4/3) pi f0 sqrt(r) n^1.5``
     (minimum at ``n = 2 pi f0 / K``). 0 without adhesion. The other normal laws take the work
     of adhesion ``w``: DMT's well ``(3/5) 2 pi w r n_e`` (``n_e = (2 pi w sqrt(r) /
-    K)^(2/3)``), JKR's snap-off loss ``c_W (w^5 r^4 / E^2)^(1/3)`` (``E = 3 K / 4``)."""
+    K)^(2/3)``), JKR's snap-off loss ``c_W (w^5 r^4 / E^2)^(1/3)`` (``E = 3 K / 4``; also
+    for Thornton-Ning, whose yield only raises the capture speed above it)."""
     xp = jnp if any(isinstance(x, jax.Array) for x in (radius, density, K, f0, w)) else np
     mass = density * 4.0 / 3.0 * math.pi * radius**3
     if law == "dmt":
         n_e = (2.0 * math.pi * w * xp.sqrt(radius) / K) ** (2.0 / 3.0)
         depth = 0.6 * 2.0 * math.pi * w * radius * n_e
-    elif law == "jkr":
+    elif law in ("jkr", "thornton_ning"):  # (Thornton-Ning: its elastic JKR part's)
         from ..reference.jkr import C_W
 
         depth = C_W * (w**5 * radius**4 / (0.75 * K) ** 2) ** (1.0 / 3.0)
