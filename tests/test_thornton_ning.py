@@ -202,6 +202,7 @@ def test_sticking_speed_matches_the_reference():
     assert float(found.speed) == pytest.approx(lo, rel=1e-7)
 
 
+@pytest.mark.slow  # a JKR program of its own: CI's second step
 def test_without_yield_the_engine_is_its_jkr_law():
     """A limiting pressure no impact reaches: the JKR law's results, oblique and spinning."""
     speeds = jnp.asarray([0.07, 0.3, 1.0, 3.0])
@@ -239,7 +240,7 @@ def test_derivatives_against_central_differences_of_the_reference():
     docs/open_points.md "Tangent discretization"; 2e-6 at rtol 1e-12)."""
     speed, p_y, C_H = 1.31, 3e8, 0.1
     inputs = ("w", "p_y", "C_H", "speed")
-    jac = ji.output_jacobian(tn_scene(p_y, C_H=C_H), speed, 0.0, inputs=inputs)
+    jac = ji.output_jacobian(tn_scene(p_y, C_H=C_H), speed, 0.0, inputs=inputs, program="compact")
     x = {"w": W, "p_y": p_y, "C_H": C_H, "speed": speed}
 
     def cor(**kw):
@@ -255,6 +256,7 @@ def test_derivatives_against_central_differences_of_the_reference():
         assert float(jac["cor_n"][0, j]) * x[name] == pytest.approx(exact, abs=3e-4), name
 
 
+@pytest.mark.slow  # a float32 program of its own: CI's second step
 def test_float32_rebounds_follow_float64():
     speeds = np.asarray([0.2, 1.31, 6.56], np.float32)
     scene = tn_scene(3e8)
