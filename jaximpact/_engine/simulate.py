@@ -1207,18 +1207,22 @@ def _simulate(
         groups = _term_groups(scene, params, angle_deg, omega0)
     settings = dict(method=method, adjoint=adjoint, chunk=chunk, loop=loop, program=program)
     if groups is not None and len(groups) > 1:
-        parts = [
-            _solve_lanes(
+        parts = []
+        for idx in groups:
+            # Padded (copies of its last impact) to a power of two, at most the batch's size,
+            # so that batches of one size, split differently, reuse a few programs.
+            lanes = min(max(SHARED_PROGRAM_LANES[0], 1 << (idx.size - 1).bit_length()), size)
+            padded = np.concatenate([idx, np.full(lanes - idx.size, idx[-1])])
+            part = _solve_lanes(
                 scene,
-                {k: v[idx] for k, v in params.items()},
-                speed[idx],
-                angle_deg[idx],
-                omega0[idx],
+                {k: v[padded] for k, v in params.items()},
+                speed[padded],
+                angle_deg[padded],
+                omega0[padded],
                 None,
                 **settings,
             )
-            for idx in groups
-        ]
+            parts.append(jax.tree_util.tree_map(lambda x, n=idx.size: x[:n], part))
         result = _merged(parts, groups)
     else:
         result = _solve_lanes(scene, params, speed, angle_deg, omega0, valid, **settings)
