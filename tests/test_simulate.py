@@ -1,6 +1,5 @@
 """The whole model: closed forms, rigid-body limits, invariants, batching, failures, gradients."""
 
-import dataclasses
 import math
 
 import jax
@@ -247,8 +246,7 @@ def test_small_batches_of_a_scene_share_one_program(table1, tmp_path):
     inside the 40."""
     from jaximpact._io.cache import enable_compilation_cache
 
-    # (all oblique: a normal impact without spin would run in a program of its own)
-    speed, angle = np.geomspace(0.3, 5.0, 40), np.linspace(1.0, 60.0, 40)
+    speed, angle = np.geomspace(0.3, 5.0, 40), np.linspace(0.0, 60.0, 40)
     previous = jax.config.jax_compilation_cache_dir
     # Another test in this process may have made this scene's program already: start from an
     # empty memo (and put the process's programs back afterwards).
@@ -285,30 +283,6 @@ def test_leaves_out_unneeded_terms(table1):
     full = ji.simulate(table1, jnp.array([0.5, 2.0]), jnp.array([0.0, 0.0]), 0.0)
     trick = ji.simulate(table1, jnp.array([0.5, 2.0]), jnp.array([0.0, 1e-12]), 0.0)
     np.testing.assert_allclose(full.cor_n, trick.cor_n, rtol=1e-5)
-
-
-def test_each_impact_takes_its_own_terms_in_a_mixed_batch(table1):
-    """A batch whose impacts need different terms (normal ones without spin beside oblique,
-    spinning ones) runs each group with its own terms: a normal impact gives the bits it
-    gives alone, in every field. With one set of terms for the whole batch (before
-    2026-11-28), 24 of these 200 impacts just above the capture speed (0.0934 m/s) differed,
-    by up to 1.0e-10 m/s in ``vn_out``: the fused programs place their multiply-adds
-    differently."""
-    rng = np.random.default_rng(0)
-    speeds = 0.0934 * (1 + rng.uniform(1e-4, 0.3, 200))
-    alone = ji.simulate(table1, speeds, np.zeros(200), 0.0)
-    mixed = ji.simulate(
-        table1,
-        np.concatenate([speeds, rng.uniform(0.2, 3.0, 40)]),
-        np.concatenate([np.zeros(200), rng.uniform(-60, 60, 40)]),
-        np.concatenate([np.zeros(200), rng.uniform(-1e5, 1e5, 40)]),
-    )
-    for field in dataclasses.fields(ji.ImpactResult):
-        a, b = getattr(alone, field.name), getattr(mixed, field.name)
-        if a is None:
-            continue
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[:200], err_msg=field.name)
-    assert np.any(np.asarray(mixed.omega_out)[200:] != 0)
 
 
 def test_float32_close_to_float64(table1):

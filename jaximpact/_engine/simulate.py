@@ -1202,86 +1202,7 @@ def _simulate(
         (params, speed, angle_deg, omega0), valid = _replace_invalid(
             (params, speed, angle_deg, omega0)
         )
-        groups = None
-    else:
-        groups = _term_groups(scene, params, angle_deg, omega0)
-    settings = dict(method=method, adjoint=adjoint, chunk=chunk, loop=loop, program=program)
-    if groups is not None and len(groups) > 1:
-        parts = []
-        for idx in groups:
-            # Padded (copies of its last impact) to a power of two, at most the batch's size,
-            # so that batches of one size, split differently, reuse a few programs.
-            lanes = min(max(SHARED_PROGRAM_LANES[0], 1 << (idx.size - 1).bit_length()), size)
-            padded = np.concatenate([idx, np.full(lanes - idx.size, idx[-1])])
-            part = _solve_lanes(
-                scene,
-                {k: v[padded] for k, v in params.items()},
-                speed[padded],
-                angle_deg[padded],
-                omega0[padded],
-                None,
-                **settings,
-            )
-            parts.append(jax.tree_util.tree_map(lambda x, n=idx.size: x[:n], part))
-        result = _merged(parts, groups)
-    else:
-        result = _solve_lanes(scene, params, speed, angle_deg, omega0, valid, **settings)
-    return jax.tree_util.tree_map(lambda x: x.reshape(shape), result)
 
-
-def _term_groups(scene: Scene, params: dict, angle_deg, omega0) -> list[np.ndarray]:
-    """The lanes of a concrete batch grouped by the terms each needs alone (as
-    :func:`required_terms` decides them from the values): a normal impact without spin
-    without tangential states, an impact without adhesion strength without adhesion, one
-    whose rolling moments vanish without them. Each group runs its own program, so an
-    impact's terms, and so its bits, do not depend on the other impacts of its batch (a
-    normal impact in a batch with spin took the tangential states: XLA's fused programs
-    place their multiply-adds differently, 1.1e-11 in ``cor_n`` for 39 of 350 impacts
-    near the capture speed)."""
-    m = scene.model
-    spins = [omega0] + ([params["omega2"]] if "omega2" in params else [])
-    tangential = np.asarray(angle_deg) != 0
-    for spin in spins:
-        tangential = tangential | (np.asarray(spin) != 0)
-    strength = params["f0"] if m.normal == "brach_dunn" else params["w"]
-    adhesion = (np.asarray(strength) != 0) & m.adhesion
-    if m.rolling_moments == "lambda":
-        moments = np.asarray(params["lambda"]) != 0
-    elif m.rolling_moments == "analytical":
-        moments = (np.asarray(params["C_A"]) != 0) | (np.asarray(params["C_H"]) != 0)
-    else:
-        moments = np.zeros_like(tangential)
-    moments = moments & tangential & m.rotation  # (they act through the spin only)
-    code = tangential.astype(int) + 2 * adhesion.astype(int) + 4 * moments.astype(int)
-    return [np.flatnonzero(code == c) for c in np.unique(code)]
-
-
-def _merged(parts: list[ImpactResult], groups: list[np.ndarray]) -> ImpactResult:
-    """One result from the groups' results, in the batch's order. A field only some groups
-    have (the Mindlin spring's energy, the target's spin, Thornton-Ning's plastic loss: their
-    terms are absent elsewhere) is 0 where absent (NaN on failed impacts)."""
-    order = np.argsort(np.concatenate(groups), kind="stable")
-    fields = {}
-    for name in (f.name for f in dataclasses.fields(ImpactResult)):
-        values = [getattr(r, name) for r in parts]
-        if all(v is None for v in values):
-            fields[name] = None
-            continue
-        dtype = next(v for v in values if v is not None).dtype
-        values = [
-            jnp.where(r.failed, jnp.nan, 0.0).astype(dtype) if v is None else v
-            for r, v in zip(parts, values, strict=True)
-        ]
-        fields[name] = jnp.concatenate(values)[order]
-    return ImpactResult(**fields)
-
-
-def _solve_lanes(
-    scene, params, speed, angle_deg, omega0, valid, *, method, adjoint, chunk, loop, program
-):
-    """The flat batch of :func:`_simulate` with one set of terms (a flat result)."""
-    dtype = speed.dtype
-    size = speed.shape[0]
     terms = required_terms(scene, params, angle_deg, omega0)
     cfg = integration_settings(scene, params, speed, angle_deg, dtype, method)
     if program not in PROGRAMS:
@@ -1304,7 +1225,7 @@ def _solve_lanes(
     result = jax.tree_util.tree_map(lambda x: x[:size], result)
     if valid is not None:
         result = _mark_invalid(result, valid)
-    return result
+    return jax.tree_util.tree_map(lambda x: x.reshape(shape), result)
 
 
 # Batches of an implicit method (Kvaerno5) of at most this many impacts are solved one impact

@@ -241,7 +241,7 @@ def _terms_lines(terms, m) -> list[str]:
     lines.append("left out")
     lines += [f"  {t}" for t in left] or ["  nothing"]
     lines.append(
-        "(each impact of a batch runs with what it needs, one program per group; zero values "
-        "of f0 (w), lambda or C_A and C_H leave their terms out only when known before tracing)"
+        "(a batch compiles the union of what its impacts need; zero values of f0 (w), lambda or "
+        "C_A and C_H leave their terms out only when known before tracing)"
     )
     return lines
