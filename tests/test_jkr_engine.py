@@ -221,6 +221,7 @@ def test_batch_does_not_change_a_lane_and_zero_w_is_hertz():
         np.testing.assert_array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k)), k)
 
 
+@pytest.mark.slow  # a float32 program of its own (16 s): CI's second step
 def test_float32_runs_and_agrees_to_its_precision():
     """In float32 no impact fails and rebounds agree with float64 to 1e-3 of the speed."""
     scene = jkr_scene(w=0.3)
