@@ -347,6 +347,15 @@ def thornton_ning_loading_force(a, a_yield, radius, K, w, p_yield):
     )
 
 
+def _thornton_ning_peak(peak, radius, E, w, a_yield):
+    """``(plastic, a_p)``: whether the peak overlap is past yield, and its contact radius on
+    the particle's JKR curve there (``2 a_y`` where it is not: a finite stand-in for the
+    double where of the plastic branches)."""
+    a_m = jkr_contact_radius(peak, radius, E, w)
+    plastic = a_m > a_yield
+    return plastic, jnp.where(plastic, a_m, 2.0 * a_yield)
+
+
 def thornton_ning_curve(peak, radius, K, w, a_yield, p_yield):
     """``(R_p, s)``: the radius and overlap shift of the JKR curve the contact follows after
     reaching the peak overlap ``peak``: ``(r, 0)`` while the peak is elastic; beyond yield
@@ -354,9 +363,7 @@ def thornton_ning_curve(peak, radius, K, w, a_yield, p_yield):
     / (P_m + sqrt(6 pi w K a_m^3))`` (continuity of the force) and ``s = peak - (a_m^2 / R_p
     - sqrt(2 pi w a_m / E))``. ``R_p`` and ``s`` are continuous at yield."""
     E = 0.75 * K
-    a_m = jkr_contact_radius(peak, radius, E, w)
-    plastic = a_m > a_yield
-    a_p = jnp.where(plastic, a_m, 2.0 * a_yield)  # double where: finite slopes when elastic
+    plastic, a_p = _thornton_ning_peak(peak, radius, E, w, a_yield)
     load = thornton_ning_loading_force(a_p, a_yield, radius, K, w, p_yield)
     r_p = K * a_p**3 / (load + jkr_adhesion_force(a_p, K, w))
     shift = peak - (a_p * a_p / r_p - jnp.sqrt(2.0 * math.pi * w * a_p / E))
@@ -372,9 +379,7 @@ def thornton_ning_plastic_loss(peak, radius, K, w, a_yield, p_yield):
     with ``P = al + be a^2 - ga sqrt(a)`` and ``dn/da = 2 a / r - (ka / 2) a^(-1/2)`` (``ka =
     sqrt(2 pi w / E)``), is a polynomial in ``sqrt(a)``."""
     E = 0.75 * K
-    a_m = jkr_contact_radius(peak, radius, E, w)
-    plastic = a_m > a_yield
-    a_p = jnp.where(plastic, a_m, 2.0 * a_yield)
+    plastic, a_p = _thornton_ning_peak(peak, radius, E, w, a_yield)
     c = jnp.sqrt(8.0 * math.pi * w * E)
     ka = jnp.sqrt(2.0 * math.pi * w / E)
     al = jkr_force(a_yield, radius, K, w) - math.pi * p_yield * a_yield**2 + c * a_yield**1.5
