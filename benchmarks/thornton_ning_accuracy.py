@@ -8,7 +8,8 @@ largest error of ``cor_n``, the largest overlap and the contact time against
 ``jaximpact.reference.thornton_ning`` over log-spaced speeds (statuses compared), and the
 ledger's largest residual; then the warm run time of a batch of oblique spinning impacts with
 the Thornton-Ning law against the same batch with JKR (medians of 5, one process, the API's
-default program), with the mean steps per impact.
+default program), with the mean steps per impact; then ``w`` and ``p_y`` fitted to synthetic
+rebounds with known answers.
 """
 
 from __future__ import annotations
@@ -86,6 +87,34 @@ def timing(n, repeats=5):
     return out
 
 
+def synthetic_fit():
+    """``w`` and ``p_y`` fitted to 20 normal ``cor_n`` (0.1-30 m/s, 0.3 % noise) of the
+    sphere at w = 0.1 J/m^2, p_y = 0.3 GPa, from a start 2x and 0.5x off."""
+    import tempfile
+    from pathlib import Path
+
+    import fitting
+
+    speeds = np.geomspace(0.1, 30.0, 20)
+    clean = np.asarray(ji.simulate(scene(friction=0.0), speeds, np.zeros(20), 0.0).cor_n)
+    noisy = clean * (1 + 0.003 * np.random.default_rng(3).standard_normal(clean.size))
+    lines = ["speed,angle_deg,observable,value"]
+    lines += [f"{float(s)!r},0.0,cor_n,{float(v)!r}" for s, v in zip(speeds, noisy, strict=True)]
+    with tempfile.TemporaryDirectory() as work:
+        data = Path(work) / "tn.csv"
+        data.write_text("\n".join(lines) + "\n")
+        t0 = time.perf_counter()
+        result = fitting.fit(
+            scene(friction=0.0),
+            data,
+            ["w", "p_y"],
+            initial={"w": 2 * W, "p_y": 1.5e8},
+            progress=False,
+        )
+        wall = time.perf_counter() - t0
+    return result, wall
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--impacts", type=int, default=2000, help="impacts in the timed batch")
@@ -111,6 +140,12 @@ def main():
         print(f"| {law} | {first:.1f} | {warm:.3f} | {args.impacts / warm:,.0f} | {steps:.0f} |")
     ratio = t["thornton_ning"][1] / t["jkr"][1]
     print(f"Thornton-Ning / JKR warm time: {ratio:.2f}")
+    result, wall = synthetic_fit()
+    print(
+        f"\nsynthetic fit of w, p_y (truth 0.1 J/m^2, 3e8 Pa; start 0.2, 1.5e8): "
+        f"{'converged' if result.converged else 'NOT converged'} in {wall:.1f} s; "
+        + ", ".join(f"{k} = {result.values[k]:.5g} +- {result.stderr[k]:.2g}" for k in ("w", "p_y"))
+    )
 
 
 if __name__ == "__main__":

@@ -46,10 +46,11 @@ def test_stored_notebook_is_clean(path):
 
 
 @pytest.fixture(scope="module")
-def shared_cache(tmp_path_factory):
-    """One compilation cache for the notebooks' kernels, as a user's sessions share one: a
-    program one notebook compiled (the Table 1 scene's, a fit's) loads in the next."""
-    return tmp_path_factory.mktemp("notebook-jit-cache")
+def shared_cache():
+    """The test run's compilation cache (tests/conftest.py) for the notebooks' kernels too,
+    as a user's sessions share one: a program compiled before (the Table 1 scene's, a fit's)
+    loads in a notebook, and one notebook's in the next."""
+    return os.environ["JAXIMPACT_CACHE_DIR"]
 
 
 @pytest.mark.slow  # about a minute each: CI's second step
