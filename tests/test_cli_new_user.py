@@ -1,7 +1,10 @@
 """What a new user meets on the command line (issue 13), through the installed command.
 
-Each test runs ``jaximpact`` in a subprocess, as a user would, and checks the exit status and
-that an error is one line naming the user's path or field, with no traceback.
+The tests run ``jaximpact`` in a subprocess, as a user would, where it computes (and once per
+kind of error), and check the exit status and that an error is one line naming the user's path
+or field, with no traceback. Errors found before anything is computed are also checked through
+``jaximpact.cli.main`` in this process (:func:`run_here`: the same code from the parsed
+arguments on, without a second interpreter's 1-2 s of imports per call).
 """
 
 import os
@@ -36,6 +39,28 @@ def run(*args, cwd=None):
     )
 
 
+def run_here(*args, cwd=None):
+    """``jaximpact ARGS`` through :func:`jaximpact.cli.main` in this process: its exit status
+    (argparse's own exits included) and what it printed, as :func:`run` returns them."""
+    import contextlib
+    import io
+    import types
+
+    from jaximpact.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.ExitStack() as stack:
+        if cwd is not None:
+            stack.enter_context(contextlib.chdir(cwd))
+        stack.enter_context(contextlib.redirect_stdout(out))
+        stack.enter_context(contextlib.redirect_stderr(err))
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exit_:
+            code = exit_.code if isinstance(exit_.code, int) else 2
+    return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
+
+
 def one_line_error(proc, code=2):
     assert proc.returncode == code, (proc.returncode, proc.stdout, proc.stderr)
     assert "Traceback" not in proc.stderr
@@ -47,7 +72,7 @@ def one_line_error(proc, code=2):
 def test_version_and_description():
     proc = run("--version")
     assert proc.returncode == 0 and proc.stdout.strip() == f"jaximpact {jaximpact.__version__}"
-    text = run("--help").stdout
+    text = run_here("--help").stdout
     for command in ("simulate", "sweep", "fit", "show", "scenes"):
         assert f"  {command}  " in text.split("positional arguments")[0], command
 
@@ -65,30 +90,30 @@ def test_solver_outputs_rebound_in_toml(tmp_path):
     assert np.isnan(res["energy_out"][0])
     bad = tmp_path / "bad.toml"
     bad.write_text(jaximpact.default_scene_path().read_text() + "\n[solver]\noutputs = 3\n")
-    assert "solver.outputs" in one_line_error(run("simulate", bad))
+    assert "solver.outputs" in one_line_error(run_here("simulate", bad))
 
 
 def test_missing_and_unwritable_files_exit_2_before_computing(tmp_path):
     line = one_line_error(run("simulate", "--impacts", tmp_path / "nope.csv"))
     assert str(tmp_path / "nope.csv") in line and "not found" in line
-    line = one_line_error(run("simulate", tmp_path / "nope.toml"))
+    line = one_line_error(run_here("simulate", tmp_path / "nope.toml"))
     assert "nope.toml" in line and "table1" in line  # names the embedded scenes too
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
     target = blocker / "results.csv"
     start = time.perf_counter()
-    line = one_line_error(run("simulate", "-o", target))
+    line = one_line_error(run_here("simulate", "-o", target))
     assert str(target) in line and ".tmp" not in line
     assert not target.exists()
     # fit: the data file and the outputs too, before any compiling.
-    line = one_line_error(run("fit", tmp_path / "nope.csv", "--params", "f0"))
+    line = one_line_error(run_here("fit", tmp_path / "nope.csv", "--params", "f0"))
     assert "nope.csv" in line and "not found" in line
-    line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "-o", target))
+    line = one_line_error(run_here("fit", "kharaz2001", "--params", "friction", "-o", target))
     assert str(target) in line
     # An empty path (`-o "$OUT"` with OUT unset) is a bad path, not "no output".
-    line = one_line_error(run("simulate", "-o", ""))
+    line = one_line_error(run_here("simulate", "-o", ""))
     assert "empty path" in line and "results CSV" in line
-    line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "--plot", ""))
+    line = one_line_error(run_here("fit", "kharaz2001", "--params", "friction", "--plot", ""))
     assert "empty path" in line and "plot" in line
     # Every one of these stopped before simulating: together well under one compilation.
     assert time.perf_counter() - start < 120
@@ -109,7 +134,7 @@ def test_units_in_table_and_help(tmp_path):
     assert header.split()[:3] == ["speed", "angle_deg", "omega0"]
     assert units.split()[:3] == ["[m/s]", "[deg]", "[rad/s]"]
     assert "[s]" in units and "[m]" in units  # contact_time, max_overlap
-    assert "omega_out rad/s" in run("simulate", "--help").stdout
+    assert "omega_out rad/s" in run_here("simulate", "--help").stdout
     assert set(RESULT_COLUMNS) <= set(COLUMN_UNITS)
 
 
@@ -136,7 +161,7 @@ def test_failure_reason_in_impact_result():
 
 
 def test_show_prints_derived_quantities(tmp_path):
-    proc = run("show")
+    proc = run_here("show")
     assert proc.returncode == 0, proc.stderr
     text = proc.stdout
     c = jaximpact.load_scene().contact
@@ -155,7 +180,7 @@ def test_show_prints_derived_quantities(tmp_path):
         "[contact]\nE1 = 7e10\nnu1 = 0.2\nE2 = 2e11\nnu2 = 0.3\nfriction = 0.2\n"
         "[impact]\nspeed = 1.0\nangle_deg = 0.0\n"
     )
-    text = run("show", scene).stdout
+    text = run_here("show", scene).stdout
     K = jaximpact.hertz_stiffness(7e10, 0.2, 2e11, 0.3)
     assert f"{float(K):.6g} Pa  (from E1" in text
     left = text.split("left out")[1]
@@ -163,7 +188,7 @@ def test_show_prints_derived_quantities(tmp_path):
 
 
 def test_embedded_scenes_by_name(tmp_path):
-    proc = run("scenes")
+    proc = run_here("scenes")
     assert proc.returncode == 0 and "table1" in proc.stdout and "kharaz2001" in proc.stdout
     out = tmp_path / "k.csv"
     proc = run("simulate", "kharaz2001", "-o", out)
@@ -174,7 +199,7 @@ def test_embedded_scenes_by_name(tmp_path):
     assert 0.97 < res["cor_n"][0] < 0.99
     # A path with the same text is still a path: a local file named like a scene is read.
     (tmp_path / "mine.toml").write_text(jaximpact.scene_path("kharaz2001").read_text())
-    assert run("show", "mine.toml", cwd=tmp_path).returncode == 0
+    assert run_here("show", "mine.toml", cwd=tmp_path).returncode == 0
 
 
 def test_fit_embedded_kharaz_data_by_name(tmp_path):
@@ -317,7 +342,7 @@ def test_outputs_that_are_not_regular_files_are_refused(tmp_path):
     loop = tmp_path / "loop.csv"
     loop.symlink_to(loop)
     for path, words in ((fifo, "is a pipe"), (link, "is a pipe (a link to")):
-        line = one_line_error(run("simulate", "-o", path))
+        line = one_line_error(run_here("simulate", "-o", path))
         assert str(path) in line and words in line and "regular file" in line, line
         assert fifo.is_fifo() and link.is_symlink()
     with pytest.raises(FileProblem, match="is a device"):
@@ -326,7 +351,7 @@ def test_outputs_that_are_not_regular_files_are_refused(tmp_path):
         output_target(loop)
     picture = tmp_path / "pipe.png"
     os.mkfifo(picture)
-    line = one_line_error(run("fit", "kharaz2001", "--params", "friction", "--plot", picture))
+    line = one_line_error(run_here("fit", "kharaz2001", "--params", "friction", "--plot", picture))
     assert str(picture) in line and "is a pipe" in line and picture.is_fifo()
 
 
@@ -337,7 +362,7 @@ def test_plot_format_checked_before_the_fit(tmp_path):
     for option, name in (("--plot", "fit.xyz"), ("--plot", "fit"), ("--profile-plot", "p.bad")):
         extra = ("--profile", "friction") if option == "--profile-plot" else ()
         start = time.perf_counter()
-        proc = run(
+        proc = run_here(
             "fit", "kharaz2001", "--params", "friction", "-o", out, option, tmp_path / name, *extra
         )
         line = one_line_error(proc)
@@ -430,7 +455,7 @@ def test_implausible_overlap_is_flagged_not_refused(tmp_path):
         "large_overlap",
     ]
     impacts.write_text("speed,angle_deg\n1e6,20\n")
-    line = one_line_error(run("simulate", scene, "--impacts", impacts))
+    line = one_line_error(run_here("simulate", scene, "--impacts", impacts))
     assert "line 2, column 'speed'" in line and "(0, 1000] m/s" in line
 
 
@@ -473,17 +498,17 @@ def test_fit_and_design_warn_about_implausible_impacts(tmp_path):
 def test_one_line_messages_for_bad_options_and_names(tmp_path):
     """Item 7: argparse's usage block, --params swallowing the data name, unknown data names,
     the `<table>` placeholder, numpy reprs, plurals."""
-    line = one_line_error(run("simulate", "--precision", "float16"))
+    line = one_line_error(run_here("simulate", "--precision", "float16"))
     assert "--precision" in line and "float16" in line and "float64" in line and "float32" in line
-    line = one_line_error(run("bogus"))
+    line = one_line_error(run_here("bogus"))
     assert "bogus" in line and "simulate" in line
-    line = one_line_error(run("fit", "--params", "friction", "kharaz2001"))
+    line = one_line_error(run_here("fit", "--params", "friction", "kharaz2001"))
     assert "'kharaz2001'" in line and "comma list" in line and "--params friction" in line
     line = one_line_error(
-        run("fit", "--init", "friction=0.2", "kharaz2001", "--params", "friction")
+        run_here("fit", "--init", "friction=0.2", "kharaz2001", "--params", "friction")
     )
     assert "missing DATA" in line and "'kharaz2001' looks like an argument: --init" in line
-    line = one_line_error(run("fit", tmp_path / "nosuch.csv", "--params", "friction"))
+    line = one_line_error(run_here("fit", tmp_path / "nosuch.csv", "--params", "friction"))
     assert "not found" in line and "kharaz2001, kharaz2001_mindlin" in line
     from fitting._least_squares.objective import FITTABLE
     from fitting.cli import split_names
@@ -551,12 +576,12 @@ def test_fit_refuses_fewer_observations_than_parameters_before_compiling(tmp_pat
     data = tmp_path / "one.csv"
     data.write_text("speed,angle_deg,cor_n\n1.0,0,0.7\n")
     start = time.perf_counter()
-    line = one_line_error(run("fit", data, "--params", "C_A,C_H,f0", "--no-progress"))
+    line = one_line_error(run_here("fit", data, "--params", "C_A,C_H,f0", "--no-progress"))
     assert "1 independent observation for 3 parameters (C_A, C_H, f0)" in line, line
     assert time.perf_counter() - start < 60
     # Repeating one measurement adds no independent observation.
     data.write_text("speed,angle_deg,cor_n\n1.0,0,0.7\n1.0,0,0.71\n1.0,0,0.69\n")
-    line = one_line_error(run("fit", data, "--params", "C_A,C_H", "--no-progress"))
+    line = one_line_error(run_here("fit", data, "--params", "C_A,C_H", "--no-progress"))
     assert "1 independent observation (3 rows) for 2 parameters" in line, line
 
 

@@ -1441,9 +1441,12 @@ def _sample_smc(
     theta = np.asarray(to_physical(names, jnp.asarray(u_center)), float)
     reference = _reference(space, theta, cov_u, log_noise_center, groups)
     rng = np.random.default_rng(seed)
+    # Every call evaluates whole populations (those still moving): blocks of at most one
+    # population leave no padding. Blocks of BLOCK rows padded a population of 6 particles
+    # 83-fold (0.17 s per move for 60 impacts).
     run = _run_smc_extended(
-        _blocks(batch, BLOCK), reference, space, chains=chains, draws=draws, rng=rng,
-        progress=progress,
+        _blocks(batch, min(BLOCK, draws)), reference, space, chains=chains, draws=draws,
+        rng=rng, progress=progress,
     )  # fmt: skip
     to_z = jax.jit(jax.vmap(lambda x: jnp.concatenate(space.to_u(x))))
     z = np.asarray(to_z(jnp.asarray(run.draws.reshape(-1, space.dim)))).reshape(run.draws.shape)

@@ -100,9 +100,10 @@ def posterior_summary(result: PosteriorResult) -> str:
     if result.sampler == "independence":
         how = f"Pareto k {result.khat:.2f}; {result.evaluations} log-density evaluations"
     elif result.sampler == "smc":
+        steps = int(np.max(result.stages))
         how = (
-            f"{result.chains} independent populations, up to {int(np.max(result.stages))} "
-            f"tempering steps; {result.evaluations} log-density evaluations"
+            f"{result.chains} independent populations, up to {steps} tempering "
+            f"step{'' if steps == 1 else 's'}; {result.evaluations} log-density evaluations"
         )
     else:
         how = f"divergences {result.divergences}; {result.evaluations} gradient evaluations"
