@@ -56,8 +56,8 @@ def run_here(*args, cwd=None):
         stack.enter_context(contextlib.redirect_stderr(err))
         try:
             code = main([str(a) for a in args])
-        except SystemExit as exit_:
-            code = exit_.code if isinstance(exit_.code, int) else 2
+        except SystemExit as exit_:  # as the interpreter maps it: None 0, a message 1
+            code = 0 if exit_.code is None else exit_.code if isinstance(exit_.code, int) else 1
     return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
 
 
