@@ -111,6 +111,14 @@ def _add_posterior_options(p) -> None:
     )
     g.add_argument("--likelihood", choices=("gaussian", "student-t"), default="gaussian")
     g.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom (4)")
+    g.add_argument(
+        "--noise",
+        choices=("auto", "integrated", "sampled"),
+        default="auto",
+        help="noise factors of observables without sigmas: auto (default) integrates them out "
+        "in closed form with the Gaussian likelihood (drawn afterwards from their exact "
+        "conditional) and samples them with student-t; integrated or sampled forces one",
+    )
     g.add_argument("--chains", type=int, default=4, help="number of chains (default 4)")
     g.add_argument("--samples", type=int, default=1000, help="draws per chain (default 1000)")
     g.add_argument("--warmup", type=int, default=300, help="warm-up steps per chain (default 300)")
@@ -410,6 +418,11 @@ def _check_fit_options(args, names, posterior_outputs) -> None:
             raise FitError(f"{label} must be an integer >= {least}, got {value}")
     if not args.nu > 0:
         raise FitError(f"--nu must be > 0, got {args.nu}")
+    if args.noise == "integrated" and args.likelihood != "gaussian":
+        raise FitError(
+            "--noise integrated needs --likelihood gaussian (the Student-t likelihood has no "
+            "closed-form integral over its noise factors)"
+        )
     if args.profile is not None and args.profile not in names:
         raise FitError(f"--profile {args.profile}: not among the fitted --params {list(names)}")
     if args.profile_plot and args.profile is None:
@@ -499,7 +512,7 @@ def _sample(args, scene, names, priors, result):
         scene, result.objective.observations, names, priors=priors,
         likelihood=args.likelihood, nu=args.nu, chains=args.chains, draws=args.samples,
         warmup=args.warmup, seed=args.seed, fit_result=result, sampler=args.sampler,
-        progress=not args.no_progress,
+        progress=not args.no_progress, noise=args.noise,
     )  # fmt: skip
 
 

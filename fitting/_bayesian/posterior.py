@@ -18,8 +18,11 @@ evaluated for many points at once. Samplers (``sampler=``, :data:`SAMPLERS`):
 Likelihood (``r``: the fit's weighted residuals, ``(model - observed) / scale``):
 
 - ``gaussian``: ``r / s ~ N(0, 1)``; ``s = 1`` where the data give sigma, else a factor
-  ``s_k`` per observable ``k`` (sampled, log-uniform on [1e-3, 1e3]) on the default scale;
-- ``student-t``: ``r / s ~ t(nu)`` (heavy tails: an outlier pulls less).
+  ``s_k`` per observable ``k`` (log-uniform on [1e-3, 1e3]) on the default scale, integrated
+  out in closed form (``noise="auto"``: the sampler runs on the physical parameters only, and
+  each factor is drawn afterwards from its exact conditional; ``_likelihood``), or sampled
+  (``noise="sampled"``);
+- ``student-t``: ``r / s ~ t(nu)`` (heavy tails: an outlier pulls less); its factors sampled.
 
 A run is good only when every R-hat is at most :data:`MAX_RHAT` (SMC: rank-normalized, over
 its independent populations, with bulk and tail ESS at least :data:`MIN_ESS`) and no
@@ -49,13 +52,22 @@ from .._least_squares.fit import FitResult, fit
 from .._least_squares.objective import FitError, Objective, check_names
 from .._least_squares.transforms import dphys_du, to_physical, to_unbounded
 from . import diagnostics
+from .likelihood import (
+    LIKELIHOODS,
+    NOISE_FACTOR_RANGE,
+    NOISE_TREATMENTS,
+    draw_noise_factors,
+    group_sums,
+    log_likelihood_function,
+    noise_factors,
+    noise_groups,
+)
 from .priors import Prior, priors_for
 from .smc import IMPORTANCE_KHAT, IMPORTANCE_MAX_WEIGHT, Reference, SMCRun, run_smc
-from .space import NOISE_FACTOR_RANGE, SamplingSpace
+from .space import SamplingSpace
 
-__all__ = ["LIKELIHOODS", "MAX_RHAT", "PosteriorResult", "sample_posterior"]
+__all__ = ["LIKELIHOODS", "MAX_RHAT", "NOISE_TREATMENTS", "PosteriorResult", "sample_posterior"]
 
-LIKELIHOODS = ("gaussian", "student-t")
 #: A run with a larger split R-hat for any parameter is not called converged.
 MAX_RHAT = 1.01
 #: HMC trajectory length in units of the metric: a quarter period of a Gaussian posterior
@@ -175,6 +187,10 @@ class PosteriorResult:
     #: ``leave_out``), and the sampling options (so that a refit can repeat them).
     left_out: tuple[int, ...] = ()
     options: dict = field(default_factory=dict, repr=False)
+    #: How the noise factors entered: ``"integrated"`` (closed form; each drawn afterwards
+    #: from its exact conditional), ``"sampled"`` (coordinates of the sampler) or ``"none"``
+    #: (every datum has a sigma).
+    noise_treatment: str = "none"
 
     @property
     def chains(self) -> int:
@@ -203,25 +219,28 @@ def _model_residuals(objective: Objective, names, value=None, scale=None):
     return residuals
 
 
-def _log_density(residuals, names, priors, groups, n_noise, likelihood, nu, weight=None):
-    """``z = (u, log noise factors) -> log posterior`` (up to a constant)."""
+def _log_density(
+    residuals, names, priors, groups, n_noise, likelihood, nu, weight=None, integrated=False
+):
+    """``z = (u, log noise factors) -> log posterior`` (up to a constant); ``integrated``: the
+    ``n_noise`` factors integrated out (``z = u``)."""
     p = len(names)
-    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu)
+    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu, integrated)
     weight = None if weight is None else jnp.asarray(weight)
     return lambda z: terms(z, residuals(z[:p]), weight)
 
 
-def _posterior_terms(names, priors, groups, n_noise, likelihood, nu):
+def _posterior_terms(names, priors, groups, n_noise, likelihood, nu, integrated=False):
     """``(z, r) -> log posterior`` given the residuals ``r`` at ``z``'s parameters (``z``: the
-    fit's ``u`` and the log noise factors)."""
+    fit's ``u`` and the log noise factors, none where ``integrated``)."""
     p = len(names)
     lo, hi = (math.log(v) for v in NOISE_FACTOR_RANGE)
-    log_likelihood = _log_likelihood(groups, n_noise, likelihood, nu)
+    log_likelihood = log_likelihood_function(groups, n_noise, likelihood, nu, integrated)
 
     def log_density(z, r, weight=None):
         u, log_s = z[:p], z[p:]
         lp = sum(priors[n].log_density_u(n, u[i]) for i, n in enumerate(names))
-        if n_noise:
+        if n_noise and not integrated:
             inside = jnp.all((log_s >= lo) & (log_s <= hi))
             lp = lp + jnp.where(inside, 0.0, -jnp.inf)
         return lp + log_likelihood(r, log_s, weight)
@@ -231,13 +250,7 @@ def _posterior_terms(names, priors, groups, n_noise, likelihood, nu):
 
 def _noise_groups(objective: Objective) -> tuple[np.ndarray, tuple[str, ...]]:
     """Noise factor of each observation (index, -1 where the data give sigma) and the names."""
-    obs = objective.observations
-    no_sigma = ~np.isfinite(obs.sigma)
-    kinds = [k for k in dict.fromkeys(obs.observable[no_sigma])]
-    groups = np.full(len(obs), -1)
-    for j, k in enumerate(kinds):
-        groups[no_sigma & (obs.observable == k)] = j
-    return groups, tuple(f"sigma_factor[{k}]" for k in kinds)
+    return noise_groups(objective.observations.observable, objective.observations.sigma)
 
 
 # -- the sampler ----------------------------------------------------------------------------
@@ -421,22 +434,30 @@ def _sample(
     batch_log_density=None,
     smc_batch=None,
     weight=None,
+    noise_treatment="auto",
 ) -> PosteriorResult:
     """The sampler on any residual function ``u -> r`` (JAX, differentiable): the path of
     :func:`sample_posterior`, open to a toy problem with a known posterior.
     ``batch_log_density``: ``Z (n, d) -> (n,)``, the independence sampler's (default: the
-    log density ``vmap``-ed). ``weight``: each observation's likelihood weight (default 1)."""
+    log density ``vmap``-ed). ``weight``: each observation's likelihood weight (default 1).
+    ``noise_treatment``: :data:`NOISE_TREATMENTS` (``smc_batch``, where given, must match)."""
+    integrated = _integrates(noise_treatment, likelihood, noise)
     if sampler == "smc" or (sampler == "auto" and z0 is None):
         return _sample_smc(
             residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center,
             likelihood=likelihood, nu=nu, chains=chains, draws=draws, seed=seed,
             progress=progress, batch=smc_batch, sampler=sampler, weight=weight,
+            integrated=integrated,
         )  # fmt: skip
+    all_noise = noise
+    if integrated:  # the sampler sees the physical parameters only
+        noise, log_noise_center = (), []
     p, k = len(names), len(noise)
     starts_given = z0 is not None  # chains placed by hand: HMC from there
     log_density = _log_density(
-        residuals, names, priors, np.asarray(groups), k, likelihood, nu, weight
-    )
+        residuals, names, priors, np.asarray(groups), len(all_noise), likelihood, nu, weight,
+        integrated,
+    )  # fmt: skip
     if batch_log_density is None:
         batch_log_density = engine_jit(jax.vmap(log_density))
     z0, metric, center = _starts_and_metric(
@@ -477,6 +498,14 @@ def _sample(
         else f"{'HMC' if used == 'hmc' else 'independence Metropolis'}: as asked "
         f"(sampler={sampler!r})"
     )
+    if integrated:
+        w = None if weight is None else jnp.asarray(weight)
+        sums = engine_jit(
+            jax.vmap(lambda zz: group_sums(residuals(zz[:p]), groups, len(all_noise), w)[0])
+        )
+        S = np.asarray(sums(jnp.asarray(z.reshape(-1, z.shape[-1])))).reshape(*z.shape[:2], -1)
+        _attach_noise(result, all_noise, groups, S, weight, seed, rank=False)
+    _describe_noise(result, integrated, all_noise)
     return result
 
 
@@ -557,12 +586,13 @@ def _posterior_result(
 
 
 def _batch_log_density(
-    objective: Objective, names, priors, groups, n_noise, likelihood, nu, weight=None
-):
+    objective: Objective, names, priors, groups, n_noise, likelihood, nu, weight=None,
+    integrated=False,
+):  # fmt: skip
     """``Z (n, d) -> log posterior (n,)``: every row's impacts in one simulation (a flat
     batch of ``n x impacts`` lanes; the simulator under ``vmap`` costs 2-3x that)."""
     p = len(names)
-    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu)
+    terms = _posterior_terms(names, priors, groups, n_noise, likelihood, nu, integrated)
 
     def log_density(Z, value, scale, weight):
         theta = jax.vmap(lambda u: to_physical(names, u))(Z[:, :p])
@@ -582,7 +612,7 @@ def _batch_log_density(
             repr(dict(priors)),
             repr(np.asarray(groups).tolist()),
         ]
-        + [str(n_noise), likelihood, repr(float(nu))]
+        + [str(n_noise), likelihood, repr(float(nu)), f"integrated={integrated}"]
     )
     weight = _weights(len(objective.observations)) if weight is None else weight
     return over_devices(log_density, key, objective._value, objective._scale, weight)
@@ -787,6 +817,7 @@ def sample_posterior(
     rtol: float | None = SAMPLING_RTOL,
     sampler: str = "auto",
     leave_out: Sequence[int] = (),
+    noise: str = "auto",
 ) -> PosteriorResult:
     """Sample the posterior of ``params`` given the observations.
 
@@ -810,6 +841,11 @@ def sample_posterior(
       SMC, `chains` is the number of independent populations and `draws` their particles.
     - `rtol`: solver tolerance of the sampler's evaluations (float64; atol ``rtol / 100``),
       where the scene leaves its own unset; None: the scene's (the fit's) tolerance.
+    - `noise`: how the noise factors of observables without sigmas enter (one of
+      :data:`NOISE_TREATMENTS`): ``"auto"`` (default) integrates them out in closed form
+      with the Gaussian likelihood (the sampler runs on `params` alone; each factor is then
+      drawn from its exact conditional at each draw) and samples them with the Student-t;
+      ``"integrated"`` or ``"sampled"`` forces one. ``result.noise_treatment`` says which ran.
     - `leave_out`: indices (from 0, in the order of the fit's observations) of observations
       whose likelihood terms are left out: the posterior without them, for exact
       leave-one-out (``fitting.loo``). The rest is unchanged: the same compiled program (the
@@ -823,6 +859,7 @@ def sample_posterior(
     t_start = time.perf_counter()
     names = check_names(params)
     _check_options(sampler, likelihood, nu, chains, draws, warmup)
+    _integrates(noise, likelihood, ("any",))  # a bad combination refused before the fit
     prior_map = priors_for(names, priors, scene.priors)
     if fit_result is None:
         fit_result = fit(
@@ -842,8 +879,10 @@ def sample_posterior(
     sampled = _at_tolerance(objective, rtol)
     dpdu = dphys_du(names, theta)
     cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
-    groups, noise = _noise_groups(objective)
-    log_noise = _initial_log_noise(fit_result, groups, noise)
+    groups, noise_names = _noise_groups(objective)
+    integrated = _integrates(noise, likelihood, noise_names)
+    k_int = len(noise_names) if integrated else 0
+    log_noise = _initial_log_noise(fit_result, groups, noise_names)
     left_out = _check_leave_out(leave_out, len(objective.observations))
     weight = _weights(len(objective.observations), left_out) if left_out else None
     result = _sample(
@@ -853,7 +892,7 @@ def sample_posterior(
         cov_u,
         prior_map,
         groups,
-        noise,
+        noise_names,
         log_noise,
         likelihood=likelihood,
         nu=nu,
@@ -866,22 +905,26 @@ def sample_posterior(
         progress=progress,
         sampler=sampler,
         batch_log_density=_batch_log_density(
-            sampled, names, prior_map, groups, len(noise), likelihood, nu, weight
-        )
+            sampled, names, prior_map, groups, len(noise_names), likelihood, nu, weight,
+            integrated,
+        )  # fmt: skip
         if sampler == "independence"
         else None,
         smc_batch=_x_batch_log_density(
-            sampled, SamplingSpace(names, noise, prior_map), groups, likelihood, nu, weight
-        )
+            sampled,
+            SamplingSpace(names, () if integrated else noise_names, prior_map),
+            groups, likelihood, nu, weight, k_int,
+        )  # fmt: skip
         if sampler in ("smc", "auto")
         else None,
         weight=weight,
+        noise_treatment=noise,
     )
     result.fit = fit_result
     result.left_out = left_out
     result.options = dict(
         likelihood=likelihood, nu=nu, chains=chains, draws=draws, warmup=warmup, seed=seed,
-        jitter=jitter, target_accept=target_accept, rtol=rtol, sampler=sampler,
+        jitter=jitter, target_accept=target_accept, rtol=rtol, sampler=sampler, noise=noise,
     )  # fmt: skip
     result.program = _model_values(sampled, names)
     result.objective = sampled
@@ -946,15 +989,6 @@ def _model_values(objective: Objective, names):
     return engine_jit(jax.vmap(_model_residuals(objective, names, zero, one)))
 
 
-def noise_factors(noise: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """``(draws, observations)`` sigma factor of each observation at each draw: its group's
-    sampled factor (``noise``: ``(draws, groups)``), 1 for rows with a sigma (group -1)."""
-    groups = np.asarray(groups)
-    if not noise.size:
-        return np.ones((noise.shape[0], groups.size))
-    return np.where(groups >= 0, noise[:, np.maximum(groups, 0)], 1.0)
-
-
 def posterior_predictive(result: PosteriorResult, n: int = 100, seed: int = 0):
     """Model values at the observations for ``n`` draws spread over the chains, and the same
     with the likelihood's noise added: ``(model (n, n_data), predicted (n, n_data))``."""
@@ -992,50 +1026,50 @@ MIN_ESS = 400
 SMC_EXTENSIONS = 2
 
 
-def _log_likelihood(groups, n_noise, likelihood, nu):
-    """``(r, log noise factors[, weight]) -> log likelihood`` (up to a constant); ``weight``
-    (one per observation, default 1): 0 leaves an observation out (:func:`_weights`)."""
-    # Rows with a sigma use factor 1 (index n_noise, a fixed 0 appended to the log factors).
-    index = jnp.asarray(np.where(groups >= 0, groups, n_noise))
-
-    def log_likelihood(r, log_s, weight=None):
-        log_scale = jnp.concatenate([log_s, jnp.zeros(1, r.dtype)])[index]
-        x = r * jnp.exp(-log_scale)
-        if likelihood == "gaussian":
-            ll = -0.5 * x**2 - log_scale
-        else:
-            ll = -0.5 * (nu + 1) * jnp.log1p(x**2 / nu) - log_scale
-        if weight is not None:  # where, not a product: a left-out term may be inf
-            ll = jnp.where(weight == 0, 0.0, weight * ll)
-        return jnp.sum(ll)
-
-    return log_likelihood
+def _likelihood_of(space: SamplingSpace, groups, likelihood, nu, integrated: int):
+    """The log likelihood ``(r, log s, weight) -> ...`` of a posterior in ``space`` whose
+    noise factors are its coordinates, or (``integrated``: their number) integrated out."""
+    n_noise = integrated or len(space.noise)
+    return log_likelihood_function(np.asarray(groups), n_noise, likelihood, nu, integrated > 0)
 
 
-def _x_log_density(residuals, space: SamplingSpace, groups, likelihood, nu, weight=None):
-    """``x -> log posterior`` (up to a constant) from ``residuals: u -> r`` (JAX)."""
-    log_likelihood = _log_likelihood(np.asarray(groups), len(space.noise), likelihood, nu)
+def _x_log_density(
+    residuals, space: SamplingSpace, groups, likelihood, nu, weight=None, integrated: int = 0
+):
+    """``x -> (log posterior, S_1 .. S_k)`` (up to a constant) from ``residuals: u -> r``
+    (JAX); ``S_j``: the residual sum of squares of each of the ``integrated`` noise groups
+    (what their factors' conditional draws need; none where the factors are sampled)."""
+    log_likelihood = _likelihood_of(space, groups, likelihood, nu, integrated)
     weight = None if weight is None else jnp.asarray(weight)
 
     def log_density(x):
         u, log_s = space.to_u(x)
-        return space.log_prior(x) + log_likelihood(residuals(u), log_s, weight)
+        r = residuals(u)
+        lp = space.log_prior(x) + log_likelihood(r, log_s, weight)
+        return jnp.concatenate([lp[None], group_sums(r, groups, integrated, weight)[0]])
 
     return log_density
 
 
 def _x_batch_log_density(
-    objective: Objective, space: SamplingSpace, groups, likelihood, nu, weight=None
+    objective: Objective,
+    space: SamplingSpace,
+    groups,
+    likelihood,
+    nu,
+    weight=None,
+    integrated: int = 0,
 ):
-    """``X (n, d) -> log posterior (n,)``: every row's impacts in one simulation (a flat
-    batch of ``n x impacts`` lanes; the simulator under ``vmap`` costs 2-3x that), compiled by
-    :func:`over_devices` with the observed values, scales and likelihood weights (``weight``,
-    default 1: one program for a posterior and its leave-one-out refits) as inputs. (The
-    simulator called
-    on its own, outside this program, runs about 1.7x faster but compiles in 35 s instead of
-    9 s on 2 cores: the wrong trade here.)"""
+    """``X (n, d) -> (n, 1 + integrated)``: the log posterior of each row and its integrated
+    noise groups' residual sums of squares (:func:`_x_log_density`), every row's impacts in
+    one simulation (a flat batch of ``n x impacts`` lanes; the simulator under ``vmap`` costs
+    2-3x that), compiled by :func:`over_devices` with the observed values, scales and
+    likelihood weights (``weight``, default 1: one program for a posterior and its
+    leave-one-out refits) as inputs. (The simulator called on its own, outside this program,
+    runs about 1.7x faster but compiles in 35 s instead of 9 s on 2 cores: the wrong trade
+    here.)"""
     names, p = space.names, len(space.names)
-    log_likelihood = _log_likelihood(np.asarray(groups), len(space.noise), likelihood, nu)
+    log_likelihood = _likelihood_of(space, groups, likelihood, nu, integrated)
     objective = _at_tolerance(objective, None, SAMPLING_LOOP)
 
     def log_density(X, value, scale, weight):
@@ -1048,13 +1082,14 @@ def _x_batch_log_density(
 
         def one(result, th, ls, lp):
             r = objective.residuals_from_result(result, objective.hertz_time(th), value, scale)
-            return lp + log_likelihood(r, ls, weight)
+            lp = lp + log_likelihood(r, ls, weight)
+            return jnp.concatenate([lp[None], group_sums(r, groups, integrated, weight)[0]])
 
         return jax.vmap(one)(result, theta, log_s, log_prior)
 
     key = "|".join(
         [objective.fingerprint(), "x", repr(space), repr(np.asarray(groups).tolist())]
-        + [likelihood, repr(float(nu))]
+        + [likelihood, repr(float(nu)), f"integrated={integrated}"]
     )
     weight = _weights(len(objective.observations)) if weight is None else weight
     return over_devices(log_density, key, objective._value, objective._scale, weight)
@@ -1282,6 +1317,7 @@ def _merge_runs(runs: list[SMCRun]) -> SMCRun:
         from_fallback=runs[0].from_fallback,
         final_ess=cat("final_ess"),
         importance_only=cat("importance_only"),
+        aux=cat("aux"),
     )
 
 
@@ -1291,19 +1327,37 @@ def posterior_setup(
     likelihood: str = "gaussian",
     nu: float = 4.0,
     rtol: float | None = SAMPLING_RTOL,
+    noise: str = "auto",
 ):
     """The posterior that :func:`sample_posterior` samples, for a fit's data and parameters:
     ``(space, batch log density X (n, d) -> (n,) in the sampler's coordinates, the objective
     at the sampling tolerance, noise groups)``. The grid reference of the benchmarks and tests
-    evaluates exactly this density."""
+    evaluates exactly this density (with noise factors integrated out, the marginal posterior
+    of the physical parameters)."""
     objective = fit_result.objective
     names = tuple(fit_result.params)
     prior_map = priors_for(names, priors, objective.scene.priors)
-    groups, noise = _noise_groups(objective)
-    space = SamplingSpace(names, noise, prior_map)
+    groups, noise_names = _noise_groups(objective)
+    integrated = _integrates(noise, likelihood, noise_names)
+    space = SamplingSpace(names, () if integrated else noise_names, prior_map)
     sampled = _at_tolerance(objective, rtol)
-    batch = _x_batch_log_density(sampled, space, groups, likelihood, nu)
-    return space, batch, sampled, groups
+    full = _x_batch_log_density(
+        sampled, space, groups, likelihood, nu, integrated=len(noise_names) if integrated else 0
+    )
+    return space, lambda X: full(X)[:, 0], sampled, groups
+
+
+def _integrates(noise: str, likelihood: str, noise_names) -> bool:
+    """Whether the noise factors ``noise_names`` are integrated out (``noise``: one of
+    :data:`NOISE_TREATMENTS`; a bad combination is a ``FitError``)."""
+    if noise not in NOISE_TREATMENTS:
+        raise FitError(f"noise must be one of {', '.join(NOISE_TREATMENTS)}, got {noise!r}")
+    if noise == "integrated" and likelihood != "gaussian":
+        raise FitError(
+            "noise='integrated' needs likelihood='gaussian' (the Student-t likelihood has no "
+            "closed-form integral over its noise factors: use noise='sampled' or 'auto')"
+        )
+    return bool(noise_names) and likelihood == "gaussian" and noise != "sampled"
 
 
 def grid_reference(
@@ -1319,7 +1373,8 @@ def grid_reference(
     progress: bool = False,
 ) -> dict:
     """The exact posterior of :func:`sample_posterior` on a grid, as a yardstick for samplers
-    (1-3 parameters, data with sigmas: no noise factors).
+    (1-3 parameters; observables without sigmas: their noise factors integrated out, the
+    Gaussian likelihood's marginal posterior).
 
     ``axes="whitened"``: the grid lies in the fit's whitened coordinates ``g`` (``x = centre +
     L g``, ``L`` the Cholesky factor of the fit's covariance carried into the sampler's
@@ -1342,7 +1397,10 @@ def grid_reference(
 
     space, batch, _, groups = posterior_setup(fit_result, priors, likelihood, nu, rtol)
     if space.noise:
-        raise FitError("grid_reference needs sigmas for every datum (no noise factors)")
+        raise FitError(
+            "grid_reference needs the noise factors integrated out (the Gaussian likelihood) "
+            "or sigmas for every datum"
+        )
     names = space.names
     theta = np.asarray(fit_result.theta, float)
     dpdu = dphys_du(names, theta)
@@ -1427,16 +1485,21 @@ def _face_mass(grid, half_width) -> float:
 
 def _sample_smc(
     residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center, *, likelihood,
-    nu, chains, draws, seed, progress, batch=None, sampler="smc", weight=None,
+    nu, chains, draws, seed, progress, batch=None, sampler="smc", weight=None, integrated=False,
 ) -> PosteriorResult:  # fmt: skip
     """``sampler="smc"``: tempered SMC in the coordinates of ``_space``, judged by the
     rank-normalized R-hat over its independent populations, bulk and tail ESS and the
-    particles' decorrelation (``batch``: ``X (n, d) -> (n,)``; default the log density
-    ``vmap``-ed)."""
+    particles' decorrelation (``batch``: ``X (n, d) -> (n, 1 + k)``, the log density and,
+    where ``integrated``, the ``k`` noise groups' residual sums of squares; default the log
+    density ``vmap``-ed)."""
+    all_noise = tuple(noise)
+    k_int = len(all_noise) if integrated else 0
+    if integrated:  # the particles carry the physical parameters only
+        noise, log_noise_center = (), []
     space = SamplingSpace(tuple(names), tuple(noise), dict(priors))
     if batch is None:
         batch = engine_jit(
-            jax.vmap(_x_log_density(residuals, space, groups, likelihood, nu, weight))
+            jax.vmap(_x_log_density(residuals, space, groups, likelihood, nu, weight, k_int))
         )
     theta = np.asarray(to_physical(names, jnp.asarray(u_center)), float)
     reference = _reference(space, theta, cov_u, log_noise_center, groups)
@@ -1460,6 +1523,10 @@ def _sample_smc(
     summary = {names_all[i]: s for i, s in _smc_summaries(space, run).items()}
     for n, stats in summary.items():
         result.summary[n].update(rhat=stats["rhat"], ess=stats["ess"], ess_tail=stats["ess_tail"])
+    if integrated:
+        floor = float(np.sum(run.final_ess))
+        _attach_noise(result, all_noise, groups, run.aux, weight, seed, rank=True, floor=floor)
+        summary.update({n: result.summary[n] for n in all_noise})
     result.problems = _smc_problems(summary) + run.problems
     result.converged = not result.problems
     result.status = "converged" if result.converged else "not converged"
@@ -1492,4 +1559,39 @@ def _sample_smc(
         f"shape assumed): {run.draws.shape[0]} independent populations of "
         f"{run.draws.shape[1]} particles, {start}; {steps}"
     )
+    _describe_noise(result, integrated, all_noise)
     return result
+
+
+def _attach_noise(result, noise, groups, S, weight, seed, *, rank, floor=None) -> None:
+    """Each draw's noise factors drawn from their exact conditional given its residual sums
+    of squares ``S`` ``(chains, draws, k)`` (``_likelihood``), put into ``result`` with their
+    summaries (``rank``: SMC's rank-normalized R-hat and ESS, the ESS at most ``floor``)."""
+    groups = np.asarray(groups)
+    w = np.ones(groups.size) if weight is None else np.asarray(weight, float)
+    counts = [float(np.sum(w[groups == j])) for j in range(len(noise))]
+    rng = np.random.default_rng([seed, 52])
+    draws = np.stack(
+        [draw_noise_factors(S[..., j], counts[j], rng) for j in range(len(noise))], axis=-1
+    )
+    result.noise, result.noise_draws = tuple(noise), draws
+    for j, name in enumerate(noise):
+        stats = _summarize(draws[..., j], rank=rank)
+        if floor is not None:
+            stats["ess"] = min(stats["ess"], floor)
+            stats["ess_tail"] = min(stats["ess_tail"], floor)
+        result.summary[name] = stats
+
+
+def _describe_noise(result, integrated: bool, noise) -> None:
+    """``result.noise_treatment`` and the sentence on it in ``result.reason``."""
+    if not noise:
+        result.noise_treatment = "none"
+        return
+    result.noise_treatment = "integrated" if integrated else "sampled"
+    result.reason += (
+        "; noise factors integrated out in closed form (Gaussian likelihood), each drawn "
+        "afterwards from its exact conditional"
+        if integrated
+        else "; noise factors sampled as coordinates"
+    )

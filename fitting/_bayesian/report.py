@@ -46,6 +46,7 @@ def posterior_fields(result: PosteriorResult) -> dict:
         "evaluations": int(result.evaluations),
         "correlation": [[_num(c) for c in row] for row in result.correlation],
         "noise": {n: _stats(result.summary[n]) for n in result.noise},
+        "noise_treatment": result.noise_treatment,
         "timings": {k: round(float(v), 4) for k, v in result.timings.items()},
     }
 

@@ -168,6 +168,7 @@ class SMCRun:
         problems: what went wrong (a stage that could not decorrelate the particles).
         importance_only: which populations ended as an importance sample (module
             docstring); their draws hold resampled copies.
+        aux: what the evaluations returned beside the log densities, for each draw.
     """
 
     draws: np.ndarray
@@ -184,6 +185,9 @@ class SMCRun:
     from_fallback: bool = False
     final_ess: np.ndarray | None = None
     importance_only: np.ndarray | None = None
+    #: ``(populations, particles, m)``: what ``evaluate`` returned beside each particle's log
+    #: density (its columns after the first), carried with the particle.
+    aux: np.ndarray | None = None
 
 
 def _ess(log_w: np.ndarray) -> float:
@@ -388,6 +392,8 @@ def run_smc(
     """Independent SMC runs (``populations`` of ``particles`` each) of the posterior whose
     log density ``evaluate(X (n, d)) -> (n,)`` gives (up to a constant; ``-inf`` or NaN where
     it is zero), from ``reference``; all populations' evaluations are one call per move.
+    ``evaluate`` may return ``(n, 1 + m)``: the log density, then ``m`` numbers that each
+    particle carries with it (``SMCRun.aux``: the noise groups' residual sums, say).
 
     ``fallback`` (the prior): used instead of ``reference`` unless the importance weights of
     all the reference's draws pooled pass the test of a direct step to ``b = 1`` (ESS at
@@ -402,20 +408,26 @@ def run_smc(
     evaluations = 0
 
     def run(X):
+        """Log densities ``(n,)`` and the carried numbers ``(n, m)`` of the rows of ``X``."""
         nonlocal evaluations
-        lp = np.nan_to_num(np.asarray(evaluate(X), float), nan=-np.inf)
+        out = np.asarray(evaluate(X), float)
         evaluations += len(X)
         bar.update(len(X))
-        return lp
+        if out.ndim == 1:
+            out = out[:, None]
+        return np.nan_to_num(out[:, 0], nan=-np.inf), out[:, 1:]
 
     X, from_prior = reference.sample(rng, K * N)
     # The prior component's draws reach stiff corners of the prior whose impacts take many
     # steps; evaluated apart, they do not hold up the batches of the rest.
     order = np.argsort(from_prior, kind="stable")
     lp_flat = np.empty(K * N)
-    lp_flat[order] = run(X[order])
+    lp_flat[order], aux_sorted = run(X[order])
+    aux_flat = np.empty_like(aux_sorted)
+    aux_flat[order] = aux_sorted
     X = X.reshape(K, N, d)
     lp = lp_flat.reshape(K, N)
+    aux = aux_flat.reshape(K, N, -1)
     lq = np.array(reference.log_density(X.reshape(-1, d)), float).reshape(K, N)
     delta = (lp - lq).reshape(-1)
     delta = np.where(np.isfinite(delta), delta, -np.inf)
@@ -423,7 +435,8 @@ def run_smc(
     if fallback is not None and not covered:
         reference = fallback
         X = reference.sample(rng, K * N)[0]
-        lp = run(X).reshape(K, N)
+        lp, aux = run(X)
+        lp, aux = lp.reshape(K, N), aux.reshape(K, N, -1)
         X = X.reshape(K, N, d)
         lq = np.array(reference.log_density(X.reshape(-1, d)), float).reshape(K, N)
     if not np.any(np.isfinite(lp)):
@@ -461,14 +474,14 @@ def run_smc(
                 khat = max(khat, _khat(log_w))
                 if stages[k] == 0 and _certified(log_w, N):
                     pick = _importance_resample(rng, log_w, N)
-                    X[k], lp[k], lq[k] = X[k][pick], lp[k][pick], lq[k][pick]
+                    X[k], lp[k], lq[k], aux[k] = X[k][pick], lp[k][pick], lq[k][pick], aux[k][pick]
                     beta[k], stages[k], reweight[k] = 1.0, 1, False
                     importance_only[k] = finished[k] = True
                     correlation[k] = math.nan
                     continue
             pick = _systematic(rng, log_w, N)
             group[k] = rng.permutation(N)[pick] % 2  # the copies of one particle together
-            X[k], lp[k], lq[k] = X[k][pick], lp[k][pick], lq[k][pick]
+            X[k], lp[k], lq[k], aux[k] = X[k][pick], lp[k][pick], lq[k][pick], aux[k][pick]
             beta[k], stages[k] = new, stages[k] + 1
             anchor[k], moved[k], reweight[k] = X[k].copy(), 0, False
         active = np.flatnonzero(~finished)
@@ -503,7 +516,8 @@ def run_smc(
                 log_ratio.append(np.zeros(N))
                 log_proposal.append(None)
             proposals.append(Xp)
-        lp_new = run(np.concatenate(proposals)).reshape(len(active), N)
+        lp_new, aux_new = run(np.concatenate(proposals))
+        lp_new, aux_new = lp_new.reshape(len(active), N), aux_new.reshape(len(active), N, -1)
         for i, k in enumerate(active):
             Xp = proposals[i]
             lq_new = np.array(reference.log_density(Xp), float)
@@ -513,6 +527,7 @@ def run_smc(
                 if _certified(log_w, N):
                     pick = _importance_resample(rng, log_w, N)
                     X[k], lp[k], lq[k] = Xp[pick], lp_new[i][pick], lq_new[pick]
+                    aux[k] = aux_new[i][pick]
                     final_ess[k], moves[k], correlation[k] = _ess(log_w), moves[k] + 1, math.nan
                     importance_only[k] = finished[k] = True
                     continue
@@ -520,6 +535,7 @@ def run_smc(
             log_alpha = np.where(np.isfinite(lp_new[i]), log_alpha + log_ratio[i], -np.inf)
             take = np.log(rng.uniform(size=N)) < log_alpha
             X[k][take], lp[k][take], lq[k][take] = Xp[take], lp_new[i][take], lq_new[take]
+            aux[k][take] = aux_new[i][take]
             rate = float(np.mean(take))
             accepted, total = accepted + int(take.sum()), total + N
             if moved[k] % 2 == 1:
@@ -559,4 +575,5 @@ def run_smc(
         from_fallback=reference is fallback,
         final_ess=final_ess,
         importance_only=importance_only,
+        aux=aux,
     )
