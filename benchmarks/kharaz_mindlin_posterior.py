@@ -107,9 +107,18 @@ def main():
     if args.json:
         Path(args.json).write_text(
             json.dumps(
-                dict(info=info, cold=cold, warm=warm, rc=[rc_cold, rc_warm], posterior=post,
-                     rows=rows, worst=worst, grid_seconds=t_grid),
-                indent=1, default=str,
+                dict(
+                    info=info,
+                    cold=cold,
+                    warm=warm,
+                    rc=[rc_cold, rc_warm],
+                    posterior=post,
+                    rows=rows,
+                    worst=worst,
+                    grid_seconds=t_grid,
+                ),
+                indent=1,
+                default=str,
             )  # fmt: skip
         )
     return 0 if worst <= TARGET_SD and cold <= TARGET_SECONDS and rc_cold == 0 else 1

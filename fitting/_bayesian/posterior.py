@@ -905,7 +905,14 @@ def sample_posterior(
         progress=progress,
         sampler=sampler,
         batch_log_density=_batch_log_density(
-            sampled, names, prior_map, groups, len(noise_names), likelihood, nu, weight,
+            sampled,
+            names,
+            prior_map,
+            groups,
+            len(noise_names),
+            likelihood,
+            nu,
+            weight,
             integrated,
         )  # fmt: skip
         if sampler == "independence"
@@ -913,7 +920,11 @@ def sample_posterior(
         smc_batch=_x_batch_log_density(
             sampled,
             SamplingSpace(names, () if integrated else noise_names, prior_map),
-            groups, likelihood, nu, weight, k_int,
+            groups,
+            likelihood,
+            nu,
+            weight,
+            k_int,
         )  # fmt: skip
         if sampler in ("smc", "auto")
         else None,
