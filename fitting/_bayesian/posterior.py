@@ -48,7 +48,7 @@ from tqdm.auto import tqdm
 from jaximpact._engine.devices import compiler_options, engine_jit, gathered
 from jaximpact._io.cache import compiled_program, runtime_checks_as_nan
 
-from .._least_squares.fit import FitResult, fit
+from .._least_squares.fit import SAME_VALUES, FitResult, fit
 from .._least_squares.objective import FitError, Objective, check_names
 from .._least_squares.transforms import dphys_du, to_physical, to_unbounded
 from . import diagnostics
@@ -435,19 +435,21 @@ def _sample(
     smc_batch=None,
     weight=None,
     noise_treatment="auto",
+    minima=(),
 ) -> PosteriorResult:
     """The sampler on any residual function ``u -> r`` (JAX, differentiable): the path of
     :func:`sample_posterior`, open to a toy problem with a known posterior.
     ``batch_log_density``: ``Z (n, d) -> (n,)``, the independence sampler's (default: the
     log density ``vmap``-ed). ``weight``: each observation's likelihood weight (default 1).
-    ``noise_treatment``: :data:`NOISE_TREATMENTS` (``smc_batch``, where given, must match)."""
+    ``noise_treatment``: :data:`NOISE_TREATMENTS` (``smc_batch``, where given, must match).
+    ``minima``: the fit's other distinct minima in ``u`` (SMC's reference covers them)."""
     integrated = _integrates(noise_treatment, likelihood, noise)
     if sampler == "smc" or (sampler == "auto" and z0 is None):
         return _sample_smc(
             residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center,
             likelihood=likelihood, nu=nu, chains=chains, draws=draws, seed=seed,
             progress=progress, batch=smc_batch, sampler=sampler, weight=weight,
-            integrated=integrated,
+            integrated=integrated, minima=minima,
         )  # fmt: skip
     all_noise = noise
     if integrated:  # the sampler sees the physical parameters only
@@ -930,6 +932,7 @@ def sample_posterior(
         else None,
         weight=weight,
         noise_treatment=noise,
+        minima=_other_minima(fit_result),
     )
     result.fit = fit_result
     result.left_out = left_out
@@ -946,6 +949,18 @@ def sample_posterior(
         "total": time.perf_counter() - t_start,
     }
     return result
+
+
+def _other_minima(fit_result: FitResult) -> list[np.ndarray]:
+    """The fit's distinct minima other than its answer, in the solver's variables ``u``."""
+    names = list(fit_result.params)
+    centre = np.asarray(to_unbounded(names, fit_result.theta), float)
+    others = []
+    for m in fit_result.minima:
+        u = np.asarray(to_unbounded(names, [m.values[n] for n in names]), float)
+        if np.max(np.abs(u - centre)) > SAME_VALUES:
+            others.append(u)
+    return others
 
 
 def _check_options(sampler, likelihood, nu, chains, draws, warmup) -> None:
@@ -1497,12 +1512,14 @@ def _face_mass(grid, half_width) -> float:
 def _sample_smc(
     residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center, *, likelihood,
     nu, chains, draws, seed, progress, batch=None, sampler="smc", weight=None, integrated=False,
+    minima=(),
 ) -> PosteriorResult:  # fmt: skip
     """``sampler="smc"``: tempered SMC in the coordinates of ``_space``, judged by the
     rank-normalized R-hat over its independent populations, bulk and tail ESS and the
     particles' decorrelation (``batch``: ``X (n, d) -> (n, 1 + k)``, the log density and,
     where ``integrated``, the ``k`` noise groups' residual sums of squares; default the log
-    density ``vmap``-ed)."""
+    density ``vmap``-ed). ``minima``: the fit's other distinct minima (in ``u``), which the
+    reference covers too (:func:`_cover_minima`)."""
     all_noise = tuple(noise)
     k_int = len(all_noise) if integrated else 0
     if integrated:  # the particles carry the physical parameters only
@@ -1518,10 +1535,14 @@ def _sample_smc(
     # Every call evaluates whole populations (those still moving): blocks of at most one
     # population leave no padding. Blocks of BLOCK rows padded a population of 6 particles
     # 83-fold (0.17 s per move for 60 impacts).
+    evaluate = _blocks(batch, min(BLOCK, draws))
+    reference, minima_note, extra = _cover_minima(
+        reference, space, names, minima, log_noise_center, evaluate
+    )
     run = _run_smc_extended(
-        _blocks(batch, min(BLOCK, draws)), reference, space, chains=chains, draws=draws,
-        rng=rng, progress=progress,
-    )  # fmt: skip
+        evaluate, reference, space, chains=chains, draws=draws, rng=rng, progress=progress
+    )
+    run.evaluations += extra
     to_z = jax.jit(jax.vmap(lambda x: jnp.concatenate(space.to_u(x))))
     z = np.asarray(to_z(jnp.asarray(run.draws.reshape(-1, space.dim)))).reshape(run.draws.shape)
     shape = run.log_density.shape
@@ -1568,10 +1589,49 @@ def _sample_smc(
     result.reason = (
         f"SMC ({'the default' if sampler == 'auto' else 'as asked'}; values only, no Gaussian "
         f"shape assumed): {run.draws.shape[0]} independent populations of "
-        f"{run.draws.shape[1]} particles, {start}; {steps}"
+        f"{run.draws.shape[1]} particles, {start}{minima_note}; {steps}"
     )
     _describe_noise(result, integrated, all_noise)
     return result
+
+
+#: A fit's other minimum joins the reference where its posterior density is at least this
+#: fraction of the mixture's weight (its share: its density at the minimum over the sum).
+MIN_MINIMUM_SHARE = 1e-3
+
+
+def _cover_minima(reference, space, names, minima, log_noise, evaluate):
+    """The reference widened to the fit's other distinct ``minima`` (``u`` of each): a t of the
+    same shape on each, weighted by the posterior density at its centre (a Laplace estimate
+    of its mass, with the best minimum's shape); those with a share below
+    :data:`MIN_MINIMUM_SHARE` left out. Returns the reference, a note for ``reason`` and the
+    evaluations spent."""
+    if not len(minima):
+        return reference, "", 0
+    centres = [reference.mean] + [
+        space.from_physical(np.asarray(to_physical(names, jnp.asarray(u)), float), log_noise)
+        for u in minima
+    ]
+    out = np.atleast_2d(evaluate(np.stack(centres)))
+    lp = np.nan_to_num(out[:, 0] if out.shape[0] == len(centres) else out[0], nan=-np.inf)
+    share = np.exp(lp - np.max(lp))
+    share = share / np.sum(share)
+    keep = share >= MIN_MINIMUM_SHARE
+    keep[int(np.argmax(share))] = True
+    n = len(centres)
+    if keep.sum() == 1 and keep[0]:
+        note = f" (the fit's {n - 1} other minima: posterior shares below {MIN_MINIMUM_SHARE:g})"
+        return reference, note, n
+    covered = Reference(
+        reference.mean, reference.cov, reference.nu, reference.prior_sample,
+        reference.prior_log_density, reference.prior_share, np.stack(centres)[keep], share[keep],
+    )  # fmt: skip
+    shares = ", ".join(f"{s:.3g}" for s in share[keep])
+    note = (
+        f", on {int(keep.sum())} of the fit's {n} distinct minima (shares {shares}, by the "
+        "posterior density at each)"
+    )
+    return covered, note, n
 
 
 def _attach_noise(result, noise, groups, S, weight, seed, *, rank, floor=None) -> None:

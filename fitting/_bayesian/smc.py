@@ -98,9 +98,14 @@ RW_ACCEPT = 0.3
 class Reference:
     """The defensive mixture ``q0 = (1 - prior_share) t(mean, cov, nu) + prior_share prior``
     in the sampler's coordinates (``prior_sample(rng, n)``, ``prior_log_density(X)``: the
-    prior's draws and normalized log density there)."""
+    prior's draws and normalized log density there). ``centres`` ``(m, d)`` and ``weights``:
+    the t part as a mixture of ``m`` t's of the same shape at those centres (a fit with
+    several distinct minima; default one, at ``mean``)."""
 
-    def __init__(self, mean, cov, nu, prior_sample, prior_log_density, prior_share):
+    def __init__(
+        self, mean, cov, nu, prior_sample, prior_log_density, prior_share, centres=None,
+        weights=None,
+    ):  # fmt: skip
         self.mean = np.asarray(mean, float)
         self.cov = np.asarray(cov, float)
         self.nu = float(nu)
@@ -108,6 +113,9 @@ class Reference:
         self.prior_sample = prior_sample
         self.prior_log_density = prior_log_density
         self.prior_share = float(prior_share)
+        self.centres = self.mean[None] if centres is None else np.atleast_2d(centres)
+        w = np.ones(len(self.centres)) if weights is None else np.asarray(weights, float)
+        self.weights = w / np.sum(w)
 
     def sample(self, rng, n) -> tuple[np.ndarray, np.ndarray]:
         """``n`` draws and whether each came from the prior component."""
@@ -116,7 +124,8 @@ class Reference:
         m = int(from_prior.sum())
         x = rng.standard_normal((n - m, len(self.mean)))
         g = rng.chisquare(self.nu, (n - m, 1))
-        X[~from_prior] = self.mean + (x @ self.chol.T) / np.sqrt(g / self.nu)
+        centre = self.centres[rng.choice(len(self.centres), size=n - m, p=self.weights)]
+        X[~from_prior] = centre + (x @ self.chol.T) / np.sqrt(g / self.nu)
         if m:
             X[from_prior] = self.prior_sample(rng, m)
         return X, from_prior
@@ -124,13 +133,18 @@ class Reference:
     def log_density(self, X) -> np.ndarray:
         X = np.asarray(X, float)
         d = len(self.mean)
-        y = np.linalg.solve(self.chol, (X - self.mean).T).T
+        y2 = np.stack(
+            [np.sum(np.linalg.solve(self.chol, (X - c).T).T ** 2, axis=1) for c in self.centres]
+        )
         log_t = (
             math.lgamma((self.nu + d) / 2)
             - math.lgamma(self.nu / 2)
             - 0.5 * d * math.log(self.nu * math.pi)
             - np.sum(np.log(np.diag(self.chol)))
-            - 0.5 * (self.nu + d) * np.log1p(np.sum(y * y, axis=1) / self.nu)
+            + logsumexp(
+                np.log(self.weights)[:, None] - 0.5 * (self.nu + d) * np.log1p(y2 / self.nu),
+                axis=0,
+            )
         )
         if self.prior_share <= 0:
             return log_t

@@ -160,6 +160,34 @@ class FitResult:
         """Fitted values as an array in :attr:`params` order."""
         return np.array([self.values[n] for n in self.params])
 
+    @property
+    def minima(self) -> list[StartResult]:
+        """The distinct minima the converged starts ended at, best first (one start each):
+        :func:`distinct_minima` of :attr:`starts`."""
+        return distinct_minima(self.starts, self.params)
+
+
+#: Two converged starts ended at the same minimum when their costs agree to this relative
+#: tolerance and their values (in the solver's variables: ln p, a logit for friction) to
+#: this absolute one.
+SAME_COST = 1e-3
+SAME_VALUES = 1e-3
+
+
+def distinct_minima(starts: Sequence[StartResult], names: Sequence[str]) -> list[StartResult]:
+    """The converged ``starts`` with one start per distinct end point, lowest cost first."""
+    kept: list[tuple[StartResult, np.ndarray]] = []
+    for start in sorted((s for s in starts if s.converged), key=lambda s: s.cost):
+        u = np.asarray(to_unbounded(list(names), [start.values[n] for n in names]), float)
+        same = any(
+            abs(start.cost - other.cost) <= SAME_COST * max(abs(other.cost), 1e-12)
+            and np.max(np.abs(u - v)) <= SAME_VALUES
+            for other, v in kept
+        )
+        if not same:
+            kept.append((start, u))
+    return [start for start, _ in kept]
+
 
 def _start_points(names, u0, starts, spread, seed) -> np.ndarray:
     """``starts`` points in u: the initial guess, then a Latin-hypercube spread around it.
@@ -495,7 +523,6 @@ def _ranked_runs(names, start_values, out: _Solved) -> list:
 def _verdict(objective, names, theta, runs, status, d, starts) -> tuple:
     """The fit's status name, its problems and warnings, and the values for its scene (a
     value outside its documented range replaced by the nearest inside)."""
-    best = runs[0][0]
     n_failed = int(np.sum(status >= jaximpact.Status.MAX_STEPS))
     warnings, problems = list(d["warnings"]), []
     if not best.converged:
@@ -540,7 +567,6 @@ def _value_warnings(objective, names, theta, runs, starts, scene_values) -> list
     """Warnings on the fitted values: implausible impacts, a value at its bound, starts that
     converged to different minima."""
     warnings = []
-    best = runs[0][0]
     implausible_at = _implausible_impacts(objective, objective.scene_at(scene_values))
     if implausible_at:
         warnings.append(
@@ -553,13 +579,13 @@ def _value_warnings(objective, names, theta, runs, starts, scene_values) -> list
             if min(theta[i] - lo, hi - theta[i]) < 1e-3 * (hi - lo):
                 warnings.append(f"{nm} = {theta[i]:.4g} is at its bound ({lo}, {hi})")
     n_conv = sum(run[0].converged for run in runs)
-    if starts > 1:
-        spread_costs = [run[0].cost for run in runs if run[0].converged]
-        if n_conv and max(spread_costs) > best.cost * (1 + 1e-3) + 1e-9:
-            warnings.append(
-                f"{n_conv} of {starts} starts converged, not all to the same minimum "
-                f"(costs {min(spread_costs):.6g} .. {max(spread_costs):.6g})"
-            )
+    minima = distinct_minima([run[0] for run in runs], names)
+    if starts > 1 and len(minima) > 1:
+        warnings.append(
+            f"{n_conv} of {starts} starts converged to {len(minima)} distinct minima (costs "
+            f"{minima[0].cost:.6g} .. {minima[-1].cost:.6g}; each listed under 'minima'): "
+            "the values above are the lowest; the posterior's reference covers every minimum"
+        )
     return warnings
 
 

@@ -98,6 +98,10 @@ def result_dict(result: FitResult) -> dict:
             }
             for s in result.starts
         ],
+        "minima": [
+            {"values": s.values, "cost": _num(s.cost), "converged": s.converged}
+            for s in result.minima
+        ],
         "data": {"source": obs.source, "counts": obs.counts()},
     }
 
@@ -168,6 +172,12 @@ def summary(result: FitResult) -> str:
             lines.append(f"  {n.ljust(width)} " + " ".join(f"{c:+.3f}" for c in row))
     for w in result.warnings:
         lines.append(f"warning: {w}")
+    minima = result.minima
+    if len(minima) > 1:
+        lines.append("minima (distinct end points of the converged starts, lowest cost first):")
+        for m in minima:
+            values = ", ".join(f"{n} = {m.values[n]:.6g}" for n in result.params)
+            lines.append(f"  cost {m.cost:.6g}: {values}")
     t = result.timings
     lines.append(
         f"time: {t['total']:.1f} s (compile {t['compile']:.1f} s, solve {t['solve']:.1f} s)"
