@@ -523,6 +523,7 @@ def _ranked_runs(names, start_values, out: _Solved) -> list:
 def _verdict(objective, names, theta, runs, status, d, starts) -> tuple:
     """The fit's status name, its problems and warnings, and the values for its scene (a
     value outside its documented range replaced by the nearest inside)."""
+    best = runs[0][0]
     n_failed = int(np.sum(status >= jaximpact.Status.MAX_STEPS))
     warnings, problems = list(d["warnings"]), []
     if not best.converged:
