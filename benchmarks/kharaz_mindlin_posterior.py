@@ -76,7 +76,7 @@ def main():
         shutil.rmtree(work, ignore_errors=True)
     post = result["posterior"]
     t0 = time.perf_counter()
-    coarse, fine = grid(40), grid(60)
+    coarse, fine = grid(60), grid(90)
     t_grid = time.perf_counter() - t0
     rows, worst, self_error = [], 0.0, 0.0
     for n in NAMES:
@@ -96,7 +96,7 @@ def main():
         f"`jaximpact fit {' '.join(CLI)}`: exit {rc_cold} cold in {cold:.1f} s (target "
         f"{TARGET_SECONDS:.0f} s), exit {rc_warm} warm in {warm:.1f} s; status "
         f"{post['status']}; {post['evaluations']} log-density evaluations; noise "
-        f"{post['noise_treatment']}. Grid (40^2 and 60^2 points, whitened axes): {t_grid:.0f} s."
+        f"{post['noise_treatment']}. Grid (60^2 and 90^2 points, whitened axes): {t_grid:.0f} s."
     )
     print()
     header = ["parameter", "grid mean", "grid sd", "SMC mean", "SMC sd", "mean err (sd)",

@@ -56,7 +56,9 @@ def replication(seed, noise):
     s = np.exp(rng.uniform(*np.log(NOISE_FACTOR_RANGE), size=2))
     groups = np.repeat([0, 1], ROWS)
     y = A @ u + s[groups] * rng.standard_normal(len(groups))
-    centre = np.linalg.lstsq(A, y, rcond=None)[0]
+    # the least-squares solution, kept inside the priors' box (as a fit's values are)
+    box = np.log([PRIOR_RANGES[n] for n in NAMES])
+    centre = np.clip(np.linalg.lstsq(A, y, rcond=None)[0], box[:, 0] + 1e-6, box[:, 1] - 1e-6)
     r = A @ centre - y
     cov = np.linalg.inv(A.T @ A) * max(float(np.mean(r**2)), 1e-12)
     result = _posterior._sample(
@@ -66,9 +68,7 @@ def replication(seed, noise):
         seed=seed, jitter=0.5, target_accept=0.9, progress=False, noise_treatment=noise,
     )  # fmt: skip
     truth = np.concatenate([np.exp(u), s])
-    draws = np.concatenate(
-        [result.draws.reshape(-1, 2), result.noise_draws.reshape(-1, 2)], axis=1
-    )
+    draws = np.concatenate([result.draws.reshape(-1, 2), result.noise_draws.reshape(-1, 2)], axis=1)
     below = np.mean(draws < truth, axis=0)
     return below, result.converged, result.evaluations
 

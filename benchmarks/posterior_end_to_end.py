@@ -1,6 +1,7 @@
-"""Posterior time end to end: `jaximpact fit DATA --params C_A C_H f0 --posterior` in fresh
-processes, cold and warm cache (issue 34's time targets: 30 s for the nearly Gaussian case,
-60 s for a weakly determined one, on 2 cores from a cold cache).
+"""Posterior time end to end: `jaximpact fit DATA --params ... --posterior` in fresh
+processes, cold and warm cache (issue 52's time targets on 2 cores from a cold cache: 15 s
+for the nearly Gaussian case, 30 s for the weakly determined one, 20 s for four parameters
+from cor_n and cor_t, 120 s for Kharaz with the Mindlin model; issue 34's were 30 and 60 s).
 
 Run: ``python benchmarks/posterior_end_to_end.py [--repeats N] [--cases gaussian weak]``
 (about 5 minutes on 2 cores with one repeat).
@@ -10,7 +11,11 @@ additive noise of sigma 0.003, numpy seed 0, the sigma given in the file):
 
 - ``gaussian``: 25 impacts, 0.3-5 m/s, 0-60 degrees (the posterior is nearly Gaussian);
 - ``weak``: 6 normal impacts, 0.6-8 m/s (C_A and f0 weakly determined: SMC starts from the
-  prior).
+  prior);
+- ``four``: C_A, C_H, f0 and friction (0.3, the Table 1 scene's) from 10 oblique impacts,
+  0.5-5 m/s at 15-60 degrees, cor_n and cor_t (sigma 0.003 each);
+- ``kharaz_mindlin``: `jaximpact fit kharaz2001_mindlin --params friction G_star --posterior`
+  (the embedded measurements; no sigmas: three noise factors, integrated out).
 
 Cold: an empty ``JAXIMPACT_CACHE_DIR``; warm: the same command again with that cache. Wall
 time of the whole command (Python start-up and imports included); the fit's and the
@@ -43,21 +48,37 @@ case, path = sys.argv[1], sys.argv[2]
 if case == "gaussian":
     speed = np.geomspace(0.3, 5.0, 25)
     angle = np.tile([0.0, 0.0, 30.0, 45.0, 60.0], 5)
+elif case == "four":
+    speed = np.geomspace(0.5, 5.0, 10)
+    angle = np.tile([15.0, 30.0, 45.0, 60.0, 30.0], 2)
 else:
     speed = np.geomspace(0.6, 8.0, 6)
     angle = np.zeros(6)
 scene = jaximpact.table1_scene().replace(contact=dict(C_A=0.75, C_H=0.25, f0=300.0))
 r = jaximpact.simulate(scene, speed, angle, 0.0)
 assert np.all(np.asarray(r.status) == 0)
-cor = np.asarray(r.cor_n) + 0.003 * np.random.default_rng(0).standard_normal(speed.size)
-rows = [f"{float(s)!r},{float(a)!r},cor_n,{float(v)!r},0.003" for s, a, v in zip(speed, angle, cor)]
+rng = np.random.default_rng(0)
+observed = ("cor_n", "cor_t") if case == "four" else ("cor_n",)
+rows = []
+for name in observed:
+    value = np.asarray(getattr(r, name)) + 0.003 * rng.standard_normal(speed.size)
+    rows += [f"{float(s)!r},{float(a)!r},{name},{float(v)!r},0.003"
+             for s, a, v in zip(speed, angle, value)]
 open(path, "w").write("speed,angle_deg,observable,value,sigma\\n" + "\\n".join(rows) + "\\n")
 """
 CASES = {
     "gaussian": "25 impacts, 0.3-5 m/s, 0-60 deg (nearly Gaussian)",
     "weak": "6 normal impacts, 0.6-8 m/s (C_A, f0 weakly determined)",
+    "four": "C_A, C_H, f0, friction from 10 oblique impacts (cor_n, cor_t)",
+    "kharaz_mindlin": "Kharaz (2001), Mindlin model: friction, G_star (noise integrated)",
 }
-TARGETS = {"gaussian": 30.0, "weak": 60.0}
+PARAMS = {
+    "gaussian": ["C_A", "C_H", "f0"],
+    "weak": ["C_A", "C_H", "f0"],
+    "four": ["C_A", "C_H", "f0", "friction"],
+    "kharaz_mindlin": ["friction", "G_star"],
+}
+TARGETS = {"gaussian": 15.0, "weak": 30.0, "four": 20.0, "kharaz_mindlin": 120.0}
 
 
 def _command():
@@ -65,10 +86,10 @@ def _command():
     return [exe] if exe else [sys.executable, "-m", "jaximpact.cli"]
 
 
-def _posterior(data, cache, out):
+def _posterior(case, data, cache, out):
     """One ``fit --posterior`` in a fresh process: (wall seconds, its JSON)."""
     env = {**os.environ, "JAXIMPACT_CACHE_DIR": str(cache)}
-    args = ["fit", str(data), "--params", "C_A", "C_H", "f0", "--posterior", "--no-progress"]
+    args = ["fit", str(data), "--params", *PARAMS[case], "--posterior", "--no-progress"]
     t = time.perf_counter()
     proc = subprocess.run([*_command(), *args, "-o", str(out)], capture_output=True, text=True,
                           env=env)  # fmt: skip
@@ -84,11 +105,14 @@ def measure(cases, repeats):
     try:
         for case in cases:
             data = work / f"{case}.csv"
-            subprocess.run([sys.executable, "-c", _MAKE_DATA, case, str(data)], check=True)
+            if case == "kharaz_mindlin":
+                data = "kharaz2001_mindlin"  # the embedded data set, with its scene
+            else:
+                subprocess.run([sys.executable, "-c", _MAKE_DATA, case, str(data)], check=True)
             for i in range(repeats):
                 cache = work / f"cache-{case}-{i}"
                 for phase in ("cold", "warm"):
-                    wall, out = _posterior(data, cache, work / "out.json")
+                    wall, out = _posterior(case, data, cache, work / "out.json")
                     rows.setdefault((case, phase), []).append((wall, out))
                     print(f"{case} {phase} {wall:.1f} s", file=sys.stderr, flush=True)
     finally:
