@@ -130,6 +130,14 @@ def _add_posterior_options(p) -> None:
         "covers the posterior) or the prior, in independent populations; independence: "
         "independence Metropolis on a t proposal (nearly Gaussian posteriors); hmc: HMC",
     )
+    g.add_argument(
+        "--moves",
+        choices=("values", "mala"),
+        default="values",
+        help="SMC's local moves: values (default: a random walk) or mala (Langevin steps along "
+        "the log density's gradient: a second compiled program, several times a value's cost "
+        "per evaluation; docs/posterior.md)",
+    )
     g.add_argument("--draws", metavar="FILE.nc", help="write the draws (ArviZ InferenceData)")
     g.add_argument("--corner", metavar="FILE.png", help="corner plot of the draws")
     g.add_argument(
@@ -512,7 +520,7 @@ def _sample(args, scene, names, priors, result):
         scene, result.objective.observations, names, priors=priors,
         likelihood=args.likelihood, nu=args.nu, chains=args.chains, draws=args.samples,
         warmup=args.warmup, seed=args.seed, fit_result=result, sampler=args.sampler,
-        progress=not args.no_progress, noise=args.noise,
+        progress=not args.no_progress, noise=args.noise, moves=args.moves,
     )  # fmt: skip
 
 

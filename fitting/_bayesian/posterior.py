@@ -100,6 +100,8 @@ WARMUP = 300
 #: ``independence`` (values only: every proposal of every chain evaluated in a few large
 #: batches; right only where its t proposal covers the posterior) and ``hmc`` (gradients).
 SAMPLERS = ("auto", "independence", "hmc", "smc")
+#: SMC's local moves: a random walk on values, or MALA on the log density's gradient.
+MOVES = ("values", "mala")
 #: Largest Pareto shape of the importance weights at which the independence sampler's
 #: proposal is trusted (Vehtari et al. 2024, "Pareto smoothed importance sampling").
 MAX_KHAT = 0.7
@@ -436,6 +438,7 @@ def _sample(
     weight=None,
     noise_treatment="auto",
     minima=(),
+    moves="values",
 ) -> PosteriorResult:
     """The sampler on any residual function ``u -> r`` (JAX, differentiable): the path of
     :func:`sample_posterior`, open to a toy problem with a known posterior.
@@ -449,7 +452,7 @@ def _sample(
             residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center,
             likelihood=likelihood, nu=nu, chains=chains, draws=draws, seed=seed,
             progress=progress, batch=smc_batch, sampler=sampler, weight=weight,
-            integrated=integrated, minima=minima,
+            integrated=integrated, minima=minima, moves=moves,
         )  # fmt: skip
     all_noise = noise
     if integrated:  # the sampler sees the physical parameters only
@@ -820,6 +823,7 @@ def sample_posterior(
     sampler: str = "auto",
     leave_out: Sequence[int] = (),
     noise: str = "auto",
+    moves: str = "values",
 ) -> PosteriorResult:
     """Sample the posterior of ``params`` given the observations.
 
@@ -848,6 +852,10 @@ def sample_posterior(
       with the Gaussian likelihood (the sampler runs on `params` alone; each factor is then
       drawn from its exact conditional at each draw) and samples them with the Student-t;
       ``"integrated"`` or ``"sampled"`` forces one. ``result.noise_treatment`` says which ran.
+    - `moves` (SMC): ``"values"`` (default: an independence proposal alternating with a
+      random walk) or ``"mala"`` (the random walk replaced by MALA steps along the log
+      density's gradient, the simulator's forward-mode derivatives: a second compiled
+      program, each evaluation several times a value's cost; for curved posteriors).
     - `leave_out`: indices (from 0, in the order of the fit's observations) of observations
       whose likelihood terms are left out: the posterior without them, for exact
       leave-one-out (``fitting.loo``). The rest is unchanged: the same compiled program (the
@@ -861,6 +869,8 @@ def sample_posterior(
     t_start = time.perf_counter()
     names = check_names(params)
     _check_options(sampler, likelihood, nu, chains, draws, warmup)
+    if moves not in MOVES:
+        raise FitError(f"moves must be one of {', '.join(MOVES)}, got {moves!r}")
     _integrates(noise, likelihood, ("any",))  # a bad combination refused before the fit
     prior_map = priors_for(names, priors, scene.priors)
     if fit_result is None:
@@ -927,18 +937,21 @@ def sample_posterior(
             nu,
             weight,
             k_int,
+            moves == "mala",
         )  # fmt: skip
         if sampler in ("smc", "auto")
         else None,
         weight=weight,
         noise_treatment=noise,
         minima=_other_minima(fit_result),
+        moves=moves,
     )
     result.fit = fit_result
     result.left_out = left_out
     result.options = dict(
         likelihood=likelihood, nu=nu, chains=chains, draws=draws, warmup=warmup, seed=seed,
         jitter=jitter, target_accept=target_accept, rtol=rtol, sampler=sampler, noise=noise,
+        moves=moves,
     )  # fmt: skip
     result.program = _model_values(sampled, names)
     result.objective = sampled
@@ -1060,11 +1073,13 @@ def _likelihood_of(space: SamplingSpace, groups, likelihood, nu, integrated: int
 
 
 def _x_log_density(
-    residuals, space: SamplingSpace, groups, likelihood, nu, weight=None, integrated: int = 0
-):
-    """``x -> (log posterior, S_1 .. S_k)`` (up to a constant) from ``residuals: u -> r``
-    (JAX); ``S_j``: the residual sum of squares of each of the ``integrated`` noise groups
-    (what their factors' conditional draws need; none where the factors are sampled)."""
+    residuals, space: SamplingSpace, groups, likelihood, nu, weight=None, integrated: int = 0,
+    gradient: bool = False,
+):  # fmt: skip
+    """``x -> (log posterior, S_1 .. S_k[, its gradient in x])`` (up to a constant) from
+    ``residuals: u -> r`` (JAX); ``S_j``: the residual sum of squares of each of the
+    ``integrated`` noise groups (what their factors' conditional draws need; none where the
+    factors are sampled); ``gradient``: the log posterior's gradient appended (MALA moves)."""
     log_likelihood = _likelihood_of(space, groups, likelihood, nu, integrated)
     weight = None if weight is None else jnp.asarray(weight)
 
@@ -1074,7 +1089,14 @@ def _x_log_density(
         lp = space.log_prior(x) + log_likelihood(r, log_s, weight)
         return jnp.concatenate([lp[None], group_sums(r, groups, integrated, weight)[0]])
 
-    return log_density
+    if not gradient:
+        return log_density
+
+    def with_gradient(x):
+        out = log_density(x)
+        return jnp.concatenate([out, jax.grad(lambda y: log_density(y)[0])(x)])
+
+    return with_gradient
 
 
 def _x_batch_log_density(
@@ -1085,15 +1107,17 @@ def _x_batch_log_density(
     nu,
     weight=None,
     integrated: int = 0,
+    gradient: bool = False,
 ):
-    """``X (n, d) -> (n, 1 + integrated)``: the log posterior of each row and its integrated
+    """``X (n, d) -> (n, 1 + integrated [+ d])``: the log posterior of each row and its integrated
     noise groups' residual sums of squares (:func:`_x_log_density`), every row's impacts in
     one simulation (a flat batch of ``n x impacts`` lanes; the simulator under ``vmap`` costs
     2-3x that), compiled by :func:`over_devices` with the observed values, scales and
     likelihood weights (``weight``, default 1: one program for a posterior and its
     leave-one-out refits) as inputs. (The simulator called on its own, outside this program,
     runs about 1.7x faster but compiles in 35 s instead of 9 s on 2 cores: the wrong trade
-    here.)"""
+    here.) ``gradient``: each row's gradient of its log posterior in ``x`` appended (forward
+    mode through the simulator: one tangent per coordinate, rows independent)."""
     names, p = space.names, len(space.names)
     log_likelihood = _likelihood_of(space, groups, likelihood, nu, integrated)
     objective = _at_tolerance(objective, None, SAMPLING_LOOP)
@@ -1113,12 +1137,22 @@ def _x_batch_log_density(
 
         return jax.vmap(one)(result, theta, log_s, log_prior)
 
+    def log_density_and_gradient(X, value, scale, weight):
+        def values(Y):
+            return log_density(Y, value, scale, weight)
+
+        out = values(X)
+        basis = jnp.broadcast_to(jnp.eye(X.shape[1])[:, None, :], (X.shape[1], *X.shape))
+        tangents = jax.vmap(lambda t: jax.jvp(lambda Y: values(Y)[:, 0], (X,), (t,))[1])(basis)
+        return jnp.concatenate([out, tangents.T], axis=1)
+
     key = "|".join(
         [objective.fingerprint(), "x", repr(space), repr(np.asarray(groups).tolist())]
-        + [likelihood, repr(float(nu)), f"integrated={integrated}"]
+        + [likelihood, repr(float(nu)), f"integrated={integrated}", f"gradient={gradient}"]
     )
+    program = log_density_and_gradient if gradient else log_density
     weight = _weights(len(objective.observations)) if weight is None else weight
-    return over_devices(log_density, key, objective._value, objective._scale, weight)
+    return over_devices(program, key, objective._value, objective._scale, weight)
 
 
 def _weights(n: int, leave_out: Sequence[int] = ()) -> np.ndarray:
@@ -1302,23 +1336,25 @@ def _smc_summaries(space: SamplingSpace, run: SMCRun) -> dict:
     return out
 
 
-def _run_smc_extended(evaluate, reference, space, *, chains, draws, rng, progress):
+def _run_smc_extended(evaluate, reference, space, *, chains, draws, rng, progress, gradient=False):
     """SMC with ``chains`` populations of ``draws`` particles, extended by ``chains`` more
-    populations (up to :data:`EXTENSIONS` times) while an R-hat or ESS fails."""
+    populations (up to :data:`EXTENSIONS` times) while an R-hat or ESS fails (``gradient``:
+    MALA moves, ``run_smc``)."""
     desc = f"posterior (SMC, {chains} populations x {draws})"
     prior = Reference(
         np.zeros(space.dim), np.eye(space.dim), REFERENCE_NU, space.sample_prior,
         space.log_prior_normalized, 1.0,
     )  # fmt: skip
     runs = [run_smc(evaluate, reference, populations=chains, particles=draws, rng=rng,
-                    progress=progress, description=desc, fallback=prior)]  # fmt: skip
+                    progress=progress, description=desc, fallback=prior,
+                    gradient=gradient)]  # fmt: skip
     for _ in range(SMC_EXTENSIONS):
         if not _smc_problems(_smc_summaries(space, _merge_runs(runs))):
             break
         runs.append(
             run_smc(evaluate, prior if runs[0].from_fallback else reference,
                     populations=chains, particles=draws, rng=rng, progress=progress,
-                    description=desc + ", extended")
+                    description=desc + ", extended", gradient=gradient)
         )  # fmt: skip
     return _merge_runs(runs)
 
@@ -1512,14 +1548,16 @@ def _face_mass(grid, half_width) -> float:
 def _sample_smc(
     residuals, names, u_center, cov_u, priors, groups, noise, log_noise_center, *, likelihood,
     nu, chains, draws, seed, progress, batch=None, sampler="smc", weight=None, integrated=False,
-    minima=(),
+    minima=(), moves="values",
 ) -> PosteriorResult:  # fmt: skip
     """``sampler="smc"``: tempered SMC in the coordinates of ``_space``, judged by the
     rank-normalized R-hat over its independent populations, bulk and tail ESS and the
     particles' decorrelation (``batch``: ``X (n, d) -> (n, 1 + k)``, the log density and,
     where ``integrated``, the ``k`` noise groups' residual sums of squares; default the log
     density ``vmap``-ed). ``minima``: the fit's other distinct minima (in ``u``), which the
-    reference covers too (:func:`_cover_minima`)."""
+    reference covers too (:func:`_cover_minima`). ``moves="mala"``: the local moves are MALA
+    steps (``batch`` then appends each row's gradient in ``x``)."""
+    gradient = moves == "mala"
     all_noise = tuple(noise)
     k_int = len(all_noise) if integrated else 0
     if integrated:  # the particles carry the physical parameters only
@@ -1527,7 +1565,9 @@ def _sample_smc(
     space = SamplingSpace(tuple(names), tuple(noise), dict(priors))
     if batch is None:
         batch = engine_jit(
-            jax.vmap(_x_log_density(residuals, space, groups, likelihood, nu, weight, k_int))
+            jax.vmap(
+                _x_log_density(residuals, space, groups, likelihood, nu, weight, k_int, gradient)
+            )
         )
     theta = np.asarray(to_physical(names, jnp.asarray(u_center)), float)
     reference = _reference(space, theta, cov_u, log_noise_center, groups)
@@ -1540,8 +1580,9 @@ def _sample_smc(
         reference, space, names, minima, log_noise_center, evaluate
     )
     run = _run_smc_extended(
-        evaluate, reference, space, chains=chains, draws=draws, rng=rng, progress=progress
-    )
+        evaluate, reference, space, chains=chains, draws=draws, rng=rng, progress=progress,
+        gradient=gradient,
+    )  # fmt: skip
     run.evaluations += extra
     to_z = jax.jit(jax.vmap(lambda x: jnp.concatenate(space.to_u(x))))
     z = np.asarray(to_z(jnp.asarray(run.draws.reshape(-1, space.dim)))).reshape(run.draws.shape)
@@ -1557,7 +1598,8 @@ def _sample_smc(
         result.summary[n].update(rhat=stats["rhat"], ess=stats["ess"], ess_tail=stats["ess_tail"])
     if integrated:
         floor = float(np.sum(run.final_ess))
-        _attach_noise(result, all_noise, groups, run.aux, weight, seed, rank=True, floor=floor)
+        S = run.aux[..., :k_int]
+        _attach_noise(result, all_noise, groups, S, weight, seed, rank=True, floor=floor)
         summary.update({n: result.summary[n] for n in all_noise})
     result.problems = _smc_problems(summary) + run.problems
     result.converged = not result.problems
@@ -1590,6 +1632,7 @@ def _sample_smc(
         f"SMC ({'the default' if sampler == 'auto' else 'as asked'}; values only, no Gaussian "
         f"shape assumed): {run.draws.shape[0]} independent populations of "
         f"{run.draws.shape[1]} particles, {start}{minima_note}; {steps}"
+        + ("; local moves: MALA (the log density's gradient)" if gradient else "")
     )
     _describe_noise(result, integrated, all_noise)
     return result
