@@ -129,7 +129,9 @@ class Reference:
         m = int(from_prior.sum())
         x = rng.standard_normal((n - m, len(self.mean)))
         g = rng.chisquare(self.nu, (n - m, 1))
-        centre = self.centres[rng.choice(len(self.centres), size=n - m, p=self.weights)]
+        centre = self.mean  # one t: no draw of a component (the random stream as before)
+        if len(self.centres) > 1:
+            centre = self.centres[rng.choice(len(self.centres), size=n - m, p=self.weights)]
         X[~from_prior] = centre + (x @ self.chol.T) / np.sqrt(g / self.nu)
         if m:
             X[from_prior] = self.prior_sample(rng, m)
