@@ -585,7 +585,8 @@ def _value_warnings(objective, names, theta, runs, starts, scene_values) -> list
         warnings.append(
             f"{n_conv} of {starts} starts converged to {len(minima)} distinct minima (costs "
             f"{minima[0].cost:.6g} .. {minima[-1].cost:.6g}; each listed under 'minima'): "
-            "the values above are the lowest; a posterior's reference covers each one with posterior mass"
+            "the values above are the lowest; a posterior's reference covers each one with "
+            "posterior mass"
         )
     return warnings
 
