@@ -211,7 +211,10 @@ def pareto_khat(weights) -> float:
     grid = 30 + int(m**0.5)
     # candidate b (the GPD's -k / sigma), spread by the tail's quartile and maximum
     b = 1.0 - np.sqrt(grid / (np.arange(1, grid + 1) - 0.5))
-    b = b / (3.0 * tail[int(m / 4 + 0.5) - 1]) + 1.0 / tail[-1]
+    quartile = tail[int(m / 4 + 0.5) - 1]
+    if not quartile > 0:  # ties at the threshold: the smallest exceedance instead of 0
+        quartile = tail[tail > 0][0]
+    b = b / (3.0 * quartile) + 1.0 / tail[-1]
     k = np.mean(np.log1p(-b[:, None] * tail[None, :]), axis=1)
     profile = m * (np.log(-b / k) - k - 1.0)  # profile log likelihood of each b
     w = np.exp(profile - np.max(profile))

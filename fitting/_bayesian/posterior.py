@@ -1369,7 +1369,11 @@ def _merge_runs(runs: list[SMCRun]) -> SMCRun:
         log_density=cat("log_density"),
         stages=cat("stages"),
         moves=cat("moves"),
-        acceptance=float(sum(r.acceptance * r.moves.sum() for r in runs) / max(total, 1)),
+        acceptance=float(
+            sum(np.nan_to_num(r.acceptance) * r.moves.sum() for r in runs) / total
+            if total
+            else math.nan
+        ),
         correlation=cat("correlation"),
         khat=max(r.khat for r in runs),
         log_evidence=cat("log_evidence"),

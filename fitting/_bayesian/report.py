@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import textwrap
 import warnings
 from pathlib import Path
@@ -108,9 +109,13 @@ def posterior_summary(result: PosteriorResult) -> str:
         )
     else:
         how = f"divergences {result.divergences}; {result.evaluations} gradient evaluations"
+    accept = (
+        f"mean acceptance {result.acceptance:.2f}"
+        if math.isfinite(result.acceptance)
+        else "no Metropolis moves (importance samples)"
+    )
     lines.append(
-        f"{how}; mean acceptance {result.acceptance:.2f}; time "
-        + ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items())
+        f"{how}; {accept}; time " + ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items())
     )
     return "\n".join(lines)
 

@@ -651,7 +651,7 @@ def run_smc(
         log_density=lp,
         stages=stages,
         moves=moves,
-        acceptance=accepted / max(total, 1),
+        acceptance=accepted / total if total else math.nan,
         correlation=correlation,
         khat=khat,
         log_evidence=log_evidence,
