@@ -324,6 +324,10 @@ def test_scene_file_and_show(tmp_path):
     bad.write_text(path.read_text().replace('"thornton_ning"', '"jkr"'))
     with pytest.raises(ji.SceneError, match="contact.p_y"):
         ji.load_scene(bad)
+    # w = 0 names w and its bound, not model.adhesion (a key the file never set)
+    bad.write_text(path.read_text().replace("w = 0.1", "w = 0.0"))
+    with pytest.raises(ji.SceneError, match=r"contact.w must be > 0 .*adhesion-free limit"):
+        ji.load_scene(bad)
 
 
 def test_traced_yield_radius_has_the_implicit_derivative():

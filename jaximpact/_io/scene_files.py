@@ -295,6 +295,12 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
             '"thornton_ning"'
         )
     strength = contact.f0 if normal == "brach_dunn" else contact.w
+    if normal == "thornton_ning" and "adhesion" not in m and not strength > 0:
+        raise SceneError(
+            f'contact.w must be > 0 with model.normal = "thornton_ning", got {contact.w:g} '
+            "(J/m^2): its law is JKR's with yield; for the adhesion-free limit take a small w "
+            "(e.g. 1e-6)"
+        )
     model = Model(
         rotation=m.get("rotation", True),
         adhesion=m.get("adhesion", bool(strength > 0)),
