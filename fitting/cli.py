@@ -153,7 +153,7 @@ def _add_posterior_options(p) -> None:
         "refits where its Pareto k exceeds 0.7, see --loo-refits); "
         "=PARAMS: that scene's own fitted parameters as a comma list (default: --params); "
         "a normal law (brach_dunn, dmt, jkr; a comma list) is the scene with that law, f0 and "
-        "w swapped in the fitted names",
+        "w swapped in the fitted names (thornton_ning needs its own scene file: its p_y)",
     )
     g.add_argument(
         "--compare-plot", metavar="FILE.png", help="each compared model's band against the data"
@@ -524,6 +524,13 @@ def _sample(args, scene, names, priors, result):
     )  # fmt: skip
 
 
+def _embedded_scene_names() -> list[str]:
+    """The scenes embedded in the package, by name."""
+    from jaximpact._io.scene_files import embedded_scenes
+
+    return list(embedded_scenes())
+
+
 def _compared_models(args, names, scene_path) -> dict:
     """``--compare``: ``{label: (scene, fitted names, priors)}`` of each other model, every
     scene read and every name checked before any computing (bad input: ``ValueError``).
@@ -551,6 +558,18 @@ def _compared_models(args, names, scene_path) -> dict:
         if not label:
             raise FitError(f"--compare expects SCENE or SCENE=NAME[,NAME...], got {item!r}")
         law = label in NORMAL_LAWS and not Path(label).exists()
+        if law and label == "thornton_ning":
+            raise FitError(
+                "--compare thornton_ning: a law swap cannot choose the Thornton-Ning law's "
+                "limiting pressure contact.p_y (and its w > 0): give a scene file with "
+                'model.normal = "thornton_ning" instead'
+            )
+        if not law and not Path(label).exists() and label not in _embedded_scene_names():
+            raise FitError(
+                f"--compare {label}: not a scene file, an embedded scene "
+                f"({', '.join(_embedded_scene_names())}) or a normal law "
+                f"({', '.join(n for n in NORMAL_LAWS if n != 'thornton_ning')})"
+            )
         if law:
             base = base or jaximpact.load_scene(scene_path)
             if label == base.model.normal:

@@ -542,6 +542,23 @@ def test_one_line_messages_for_bad_options_and_names(tmp_path):
     assert "2 chunks, 128 impacts in 2.0 s (64 impacts/s)" in summary_line(many)
 
 
+def test_compare_names_what_it_accepts():
+    """A --compare item that is neither a file, an embedded scene nor a law lists all three;
+    thornton_ning (a law a swap cannot set up: its p_y) says to give a scene file; the help
+    names it. Refused before any fit (exit 2)."""
+    base = ("fit", "kharaz2001", "--params", "friction", "--posterior", "--compare")
+    done = run_here(*base, "hertzz")
+    line = one_line_error(done)
+    assert done.returncode == 2
+    assert "hertzz" in line and "kharaz2001_mindlin" in line and "brach_dunn, dmt, jkr" in line
+    done = run_here(*base, "thornton_ning")
+    assert done.returncode == 2
+    assert "contact.p_y" in one_line_error(done) and "scene file" in one_line_error(done)
+    assert "thornton_ning needs its own scene file" in " ".join(
+        run_here("fit", "--help").stdout.split()
+    )
+
+
 def test_python_api_errors_name_the_argument():
     """Item 7: a string speed, the string "1.0", an empty list, shapes that do not broadcast
     and a scene that is not a Scene are refused by name, before anything is converted."""
