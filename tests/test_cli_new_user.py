@@ -7,6 +7,7 @@ or field, with no traceback. Errors found before anything is computed are also c
 arguments on, without a second interpreter's 1-2 s of imports per call).
 """
 
+import itertools
 import os
 import shutil
 import subprocess
@@ -722,7 +723,7 @@ def test_fit_plot_labels_every_curve_and_axis(tmp_path, monkeypatch):
     report.plot_fit(tmp_path / "fit.png", result)
     (fig,) = figures
     axes = fig.axes
-    assert [ax.get_ylabel() for ax in axes] == [
+    assert [ax.get_ylabel().replace("\n", " ") for ax in axes] == [
         "normal restitution, cor_n (dimensionless)",
         "tangential restitution, cor_t (dimensionless)",
     ]
@@ -734,6 +735,30 @@ def test_fit_plot_labels_every_curve_and_axis(tmp_path, monkeypatch):
     legend = [t.get_text() for t in axes[0].get_legend().get_texts()]
     assert {"model, 20 deg", "model, 40 deg", "model at the data", "data"} <= set(legend)
     assert "friction = 0.1 \u00b1 0.0064" in axes[0].get_title()
+    _assert_axis_labels_inside_and_apart(fig)
+
+
+def _assert_axis_labels_inside_and_apart(fig):
+    """Every axis label lies inside the figure, and the stacked panels' y labels do not run
+    into each other (a long label such as "tangential restitution, cor_t (dimensionless)" on
+    a short panel was cut to "angential ..." and overlapped its neighbour's)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    boxes = []
+    for ax in fig.axes:
+        for label in (ax.xaxis.label, ax.yaxis.label):
+            if not label.get_text():
+                continue
+            box = label.get_window_extent(renderer)
+            inside = box.x0 >= 0 and box.y0 >= 0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1
+            assert inside, (label.get_text(), box, fig.bbox)
+        if ax.yaxis.label.get_text():
+            boxes.append(ax.yaxis.label.get_window_extent(renderer))
+    for a, b in itertools.combinations(boxes, 2):
+        assert not a.overlaps(b), (a, b)
 
 
 def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monkeypatch):

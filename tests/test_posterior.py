@@ -893,3 +893,39 @@ def test_predictive_plot_shows_a_model_the_posterior_leaves_certain(monkeypatch,
     np.testing.assert_allclose(median.get_xdata(), angle)
     np.testing.assert_allclose(median.get_ydata()[:2], 5 / 7)
     assert median.get_visible() and median.get_linewidth() > 0
+
+
+def test_predictive_plot_labels_stay_inside_and_apart(monkeypatch, tmp_path):
+    """Three stacked panels (cor_n, cor_t, rebound angle): each y label inside the figure and
+    clear of its neighbours' (one-line labels were cut to "angential restitution ..." and ran
+    into each other)."""
+    from types import SimpleNamespace
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from fitting._bayesian import report
+
+    kinds = np.repeat(["cor_n", "cor_t", "rebound_angle_deg"], 4)
+    obs = SimpleNamespace(
+        speed=np.full(12, 1.0), angle_deg=np.tile([10.0, 20.0, 40.0, 60.0], 3),
+        observable=kinds, value=np.linspace(0.5, 0.8, 12), sigma=np.full(12, 0.01),
+    )  # fmt: skip
+    model = np.tile(np.linspace(0.5, 0.8, 12), (50, 1))
+    monkeypatch.setattr(report, "posterior_predictive", lambda result, n: (model, model))
+    figures = []
+    monkeypatch.setattr(report, "_atomic_savefig", lambda fig, path: figures.append(fig))
+    result = SimpleNamespace(
+        fit=SimpleNamespace(objective=SimpleNamespace(observations=obs)), params=("friction",),
+        summary={"friction": {"median": 0.3, "q05": 0.25, "q95": 0.35}},
+    )  # fmt: skip
+    report.plot_predictive(tmp_path / "p.png", result)
+    fig = figures[0]
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    boxes = [ax.yaxis.label.get_window_extent(renderer) for ax in fig.axes]
+    assert len(boxes) == 3
+    for box in boxes:
+        assert box.x0 >= 0 and box.y0 >= 0 and box.y1 <= fig.bbox.y1, (box, fig.bbox)
+    for a, b in itertools.combinations(boxes, 2):
+        assert not a.overlaps(b), (a, b)

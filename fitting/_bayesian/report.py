@@ -13,7 +13,13 @@ from jaximpact._io.paths import atomic_output
 
 from .._data import OBSERVABLES
 from .._least_squares.objective import FitError
-from .._least_squares.report import _atomic_savefig, _num, observable_label, parameter_label
+from .._least_squares.report import (
+    _atomic_savefig,
+    _num,
+    _two_lines,
+    observable_label,
+    parameter_label,
+)
 from .posterior import PosteriorResult, posterior_predictive
 
 __all__ = [
@@ -260,7 +266,7 @@ def _observable_panels(obs, draw):
         sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
         ax.errorbar(x[sel], obs.value[sel], yerr=sigma if np.any(sigma) else None, fmt="o",
                     color="k", ms=3, label="data")  # fmt: skip
-        ax.set_ylabel(observable_label(name))
+        ax.set_ylabel(_two_lines(observable_label(name)))
         if not x_is_angle:
             ax.set_xscale("log")
             ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
