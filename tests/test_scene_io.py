@@ -105,6 +105,24 @@ def test_invalid_sections_are_named(tmp_path, extra, field):
         ji.load_scene(write(tmp_path, BASE + extra))
 
 
+@pytest.mark.parametrize(
+    "old, new, rule",
+    [
+        (
+            "radius = 35e-6",
+            "radius = nan",
+            r"particle.radius must be finite and in \[1e-0?9, 1\] m",
+        ),
+        ("C_H = 0.22", "C_H = inf", r"contact.C_H must be finite and in \[0, "),
+    ],
+)
+def test_non_finite_values_are_refused_with_their_range(tmp_path, old, new, rule):
+    """A NaN or infinite value names the field and its allowed range (was only "must be
+    finite")."""
+    with pytest.raises(SceneError, match=rule):
+        ji.load_scene(write(tmp_path, BASE.replace(old, new)))
+
+
 def test_missing_file_and_bad_toml(tmp_path):
     with pytest.raises(SceneError, match="not found"):
         ji.load_scene(tmp_path / "nope.toml")

@@ -5,6 +5,7 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
+from .._model.ranges import RANGES, range_text
 from .._model.scene import (
     Contact,
     Impact,
@@ -201,7 +202,9 @@ def _numbers(data: dict):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise SceneError(f"{section}.{key} must be a number, got {value!r}")
         if not math.isfinite(value):
-            raise SceneError(f"{section}.{key} must be finite, got {value!r}")
+            field = f"{section}.{key}"
+            rule = range_text(key, field) if key in RANGES else f"{field} must be finite"
+            raise SceneError(f"{rule}, got {value!r}")
         return float(value)
 
     return number
