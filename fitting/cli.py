@@ -584,6 +584,14 @@ def _compared_models(args, names, scene_path) -> dict:
         except FitError as err:
             raise FitError(f"--compare {item}: {err}") from None
         scene = base.with_normal_law(label) if law else jaximpact.load_scene(label)
+        strength = "f0" if law and label == "brach_dunn" else "w"
+        if law and strength not in model_names and not float(getattr(scene.contact, strength)) > 0:
+            raise FitError(
+                f"--compare {label}: this scene has no adhesion ({strength} = 0 after the swap, "
+                f"not fitted), and without adhesion the {label} law is the same model as the "
+                f"scene's own ({base.model.normal}): fit {strength} too ({label}=NAME,...,"
+                f"{strength}) or compare scenes that differ"
+            )
         if law and "w" in model_names and not float(scene.contact.w) > 0:
             # a scene without adhesion: w starts at its default prior's centre (0.1 J/m^2)
             lo, hi = PRIOR_RANGES["w"]

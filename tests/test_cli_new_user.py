@@ -555,6 +555,11 @@ def test_compare_names_what_it_accepts():
     done = run_here(*base, "thornton_ning")
     assert done.returncode == 2
     assert "contact.p_y" in one_line_error(done) and "scene file" in one_line_error(done)
+    # laws that differ only in adhesion, on a scene without it, without w fitted: one model
+    done = run_here(*base, "dmt,jkr")
+    assert done.returncode == 2
+    line = one_line_error(done)
+    assert "--compare dmt" in line and "no adhesion" in line and "w" in line
     assert "thornton_ning needs its own scene file" in " ".join(
         run_here("fit", "--help").stdout.split()
     )
