@@ -213,6 +213,9 @@ def test_fit_embedded_kharaz_data_by_name(tmp_path):
     # The rigid model on all angles; the published sliding friction is 0.092.
     assert 0.085 < result["params"]["friction"]["value"] < 0.105, result["params"]
     assert "embedded kharaz2001" in proc.stdout
+    # the data by name, not the path the package is installed at
+    assert "(embedded data set kharaz2001)" in proc.stdout
+    assert "kharaz2001_oblique_impact.csv" not in proc.stdout
 
 
 def test_jaximpact_never_imports_fitting():

@@ -124,12 +124,25 @@ _STATUS_LINE = {
 }
 
 
+def _source_text(source: str) -> str:
+    """The data's source as a reader knows it: an embedded data set by name (not the path
+    the package happens to be installed at), else the file as given."""
+    from .._data import KHARAZ2001_FILE, kharaz2001_path
+
+    try:
+        if Path(source).name == KHARAZ2001_FILE and Path(source).samefile(kharaz2001_path()):
+            return "embedded data set kharaz2001"
+    except (OSError, ValueError):
+        pass
+    return source
+
+
 def summary(result: FitResult) -> str:
     """A readable multi-line summary: status, values with standard errors and sensitivities,
     rank, condition number, goodness of fit, problems, warnings, timings."""
     lines = [
         f"fit of {', '.join(result.params)} to {_count(result.n_data, 'observation')} "
-        f"({result.objective.observations.source}); solver {result.solver}, "
+        f"({_source_text(result.objective.observations.source)}); solver {result.solver}, "
         f"{len(result.starts)} start(s)",
         f"status: {_STATUS_LINE.get(result.status, result.status)}",
     ]
