@@ -516,6 +516,13 @@ def test_refusal_names_every_setting_that_differs():
     assert _setting_differences(old, {**old, "impacts": {"impacts_sha256": "c" * 64}}) == [
         "impacts: a grid in the sweep, an impacts file now"
     ]
+    # two changes, one of them a stored-output setting: both named (only the chunk size was)
+    assert _setting_differences(
+        old, {**old, "chunk_size": 1024, "result_columns": ["status", "cor_n"]}
+    ) == [
+        "chunk_size: 8192 in the sweep, 1024 now",
+        "result_columns: None in the sweep, ['status', 'cor_n'] now",
+    ]
 
 
 def test_read_sweep_rejects_what_is_not_a_sweep(tmp_path):

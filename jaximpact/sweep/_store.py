@@ -214,10 +214,13 @@ def _setting_differences(old: dict, new: dict) -> list[str]:
     for key in ("precision", "chunk_size"):
         if old.get(key) != new[key]:
             out.append(f"{key}: {both(old.get(key), new[key])}")
-    if not out:  # what remains is derived from the above; say it anyway
-        for key in sorted(set(old) | set(new)):
-            if key != "scene" and old.get(key) != new.get(key):
-                out.append(f"{key}: {both(old.get(key), new.get(key))}")
+    # Every other setting that differs (stored columns and precision, say) is named too; the
+    # counts derived from the impacts and the chunk size only where nothing above differs.
+    covered = {"jaximpact", "scene", "scene_sha256", "impacts", "precision", "chunk_size"}
+    derived = set() if not out else {"n_impacts", "n_chunks", "columns"}
+    for key in sorted(set(old) | set(new)):
+        if key not in covered | derived and old.get(key) != new.get(key):
+            out.append(f"{key}: {both(old.get(key), new.get(key))}")
     return out or ["the settings hash differs"]
 
 
