@@ -824,6 +824,7 @@ def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monk
                 assert ax.get_tightbbox(renderer).y1 <= title.y0 + 1, "a panel overlaps the title"
         if len(params) == 1:  # a histogram of readable size, not a small one under the title
             assert fig.get_figwidth() >= 4.5 and fig.axes[0].get_position().height > 0.5
+        assert "(4 chains x 200 draws)" in " ".join(fig._suptitle.get_text().split())
         s = summary["C_A"]
         assert fig.axes[0].get_title() == (
             f"C_A = {s['median']:.3g} s/m\n90 %: [{s['q05']:.3g}, {s['q95']:.3g}]"
@@ -832,6 +833,13 @@ def test_profile_and_corner_plots_have_units_and_unclipped_titles(tmp_path, monk
         assert [ax.get_xlabel() for ax in bottom] == [
             f"{n} ({u})" for n, u in zip(params, ("s/m", "N/m")[: len(params)], strict=True)
         ]
+    # SMC's chains are independent populations of particles: the title says so
+    figures = _captured_figure(monkeypatch, posterior_report)
+    posterior_report.plot_corner(
+        tmp_path / "c.png", SimpleNamespace(**{**vars(post), "sampler": "smc"})
+    )
+    (fig,) = figures
+    assert "(4 populations x 200 particles)" in " ".join(fig._suptitle.get_text().split())
 
 
 @pytest.mark.slow  # a fit and a plot in a fresh process (~20 s): CI's second step

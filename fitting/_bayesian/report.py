@@ -232,8 +232,11 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
                 ax.set_xlabel(parameter_label(names[j]))
             if j == 0 and i > 0:
                 ax.set_ylabel(parameter_label(names[i]))
+    units = ("populations", "particles") if getattr(result, "sampler", "") == "smc" else (
+        "chains", "draws",
+    )  # fmt: skip
     title = (
-        f"posterior ({result.chains} chains x {result.draws.shape[1]} draws); "
+        f"posterior ({result.chains} {units[0]} x {result.draws.shape[1]} {units[1]}); "
         + ("converged" if result.converged else "NOT CONVERGED")
         + ("; red +: the least-squares optimum" if best is not None and p > 1 else "")
     )
