@@ -653,6 +653,26 @@ def test_undetermined_parameters_are_named_with_true_numbers(sigma_known):
             assert d["condition_number"] == math.inf and "no sensitivity" in message, message
 
 
+@pytest.mark.parametrize("rows", [1, 4])
+def test_a_parameter_that_moves_no_residual_is_named_not_determined(rows):
+    """Friction of impacts that roll from the start: sensitivity 1.4e-15, a one-parameter
+    Jacobian of condition number 1, rank 1 of 1, and (one row, no sigmas) "no residual
+    variance" as the only reason; now the parameter is named, with its sensitivity."""
+    import math
+
+    from fitting._least_squares.fit import _diagnose
+
+    jac = np.full((rows, 1), 1.4e-15)
+    d = _diagnose(jac, 0.5, rows, ("friction",), np.array([0.1]), False)
+    assert d["unidentifiable"] == ["friction"]
+    assert d["stderr"]["friction"] == math.inf
+    (message,) = [m for m in d["undetermined"] if "do not determine friction" in m]
+    assert "sensitivity" in message and "moves no residual" in message
+    # a parameter the data do move (sigmas given) is not flagged
+    d = _diagnose(np.full((rows, 1), 3.0), 0.5, rows, ("friction",), np.array([0.1]), True)
+    assert d["unidentifiable"] == [] and not d["undetermined"]
+
+
 def test_fit_summary_with_sigmas_never_says_no_sigmas():
     """Item 3: data with sigma columns and no degrees of freedom printed "no sigmas: no
     chi-square"; the summary says why there is no chi-square, with right plurals."""

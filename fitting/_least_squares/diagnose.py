@@ -17,6 +17,11 @@ MAX_CONDITION = 1e8
 NULL_SHARE = 0.1
 #: A parameter whose standard error exceeds this fraction of its value is not determined.
 MAX_RELATIVE_STDERR = 1.0
+#: A parameter whose sensitivity ``|dr/d ln p|`` (default scales per unit change of ``ln p``)
+#: is below this is not determined whatever the condition number says: doubling it moves no
+#: residual by more than 1e-8 of a scale (friction of an impact that rolls from the start:
+#: 1.4e-15, where a one-parameter Jacobian's condition number is 1).
+MIN_SENSITIVITY = 1e-8
 
 #: Misfit with sigmas: chi-square p-value below this and reduced chi-square above
 #: ``MISFIT_CHI2``; without sigmas: rms residual above ``MISFIT_RMS`` default scales.
@@ -129,7 +134,19 @@ def _rank(out, jac, names, theta, dpdu, undetermined) -> tuple:
     out["condition_number"] = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
     null = vt[~keep]
     bad = np.any(np.abs(null) > NULL_SHARE, axis=0) if null.size else np.zeros(p, bool)
+    insensitive = np.isfinite(sens) & (sens < MIN_SENSITIVITY) & ~bad
+    bad = bad | insensitive
     out["unidentifiable"] = [nm for nm, b in zip(names, bad, strict=True) if b]
+    if insensitive.any():
+        undetermined.append(
+            "the data do not determine "
+            + ", ".join(
+                f"{nm} (sensitivity |dr/d ln p| {sens[i]:.2g} scales, below "
+                f"{MIN_SENSITIVITY:g}: changing it moves no residual)"
+                for i, nm in enumerate(names)
+                if insensitive[i]
+            )
+        )
     if out["rank"] < p:
         combos = []
         for v in null:
