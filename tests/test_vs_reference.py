@@ -174,3 +174,20 @@ def test_roll_time_agrees_with_exact_reference():
     rolled = ~np.isnan(exact)
     # the smooth model's onset is where the slip reaches the regularization width
     np.testing.assert_allclose(engine[rolled], exact[rolled], rtol=1e-3)
+
+
+def test_roll_time_is_zero_where_the_impact_never_slips_in_any_batch():
+    """A normal impact without spin rolls from the first touch: ``roll_time`` 0 alone and
+    beside oblique spinning impacts (which switch the tangential terms on; the entry shell's
+    time made it about 1e-11 s there), rebounding or captured, and as the reference says."""
+    scene, params = ji.table1_scene(), ref.table1_params()
+    speed, angle, omega0 = np.array([0.5, 0.5, 0.01]), np.array([0.0, 40.0, 0.0]), [0.0, 1e2, 0.0]
+    mixed = ji.simulate(scene, speed, angle, np.asarray(omega0))
+    assert list(np.asarray(mixed.status)) == [
+        ji.Status.REBOUND,
+        ji.Status.REBOUND,
+        ji.Status.CAPTURED,
+    ]
+    assert float(mixed.roll_time[0]) == 0.0 and float(mixed.roll_time[2]) == 0.0
+    assert float(ji.simulate(scene, 0.5, 0.0, 0.0).roll_time) == 0.0
+    assert ref.simulate_impact(params, 0.5, 0.0).roll_time == 0.0

@@ -632,9 +632,14 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
         # The latch covers the integrated part of the contact only (the shells are crossed in
         # closed form): a sphere that slid to the end of it never rolled; the onset of rolling
         # counts from the first touch, the entry shell included.
+        # One that never slid (no slip from the first touch: a normal impact without spin)
+        # rolled from the start: 0, in any batch (the entry shell's time made it 1e-11 s in
+        # a batch whose other impacts need the tangential terms).
         slid_through = y["slide_time"] >= t_end * (1 - 1e-4) - 1e-6
         y["slide_time"] = jnp.where(
-            slid_through, t_end + shell_time, y["slide_time"] + entry["time"]
+            slid_through,
+            t_end + shell_time,
+            jnp.where(y["slide_time"] > 0, y["slide_time"] + entry["time"], 0.0),
         )
     t_end = t_end + shell_time
     status = jnp.where(
