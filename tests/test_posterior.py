@@ -721,10 +721,13 @@ def _own(space, x, i):
     return float(jax.nn.log_sigmoid(x[i]) + jax.nn.log_sigmoid(-x[i]))
 
 
-def test_smc_matches_a_grid_posterior_on_a_curved_ridge():
+@pytest.mark.parametrize("moves, seed", [("values", 0), ("mala", 1)])
+def test_smc_matches_a_grid_posterior_on_a_curved_ridge(moves, seed):
     """A curved ridge (ln f0 follows ln C_A quadratically, 0.1 thick against 0.3 along) with
-    ln C_H apart: the default sampler's mean, sd and 5/50/95 % quantiles of every physical
-    parameter against the same density on a 3-D grid (`_bayesian.grid`)."""
+    ln C_H apart: the sampler's mean, sd and 5/50/95 % quantiles of every physical parameter
+    against the same density on a 3-D grid (`_bayesian.grid`), with the default moves and
+    with MALA moves (whose uncapped drift left this ridge's tail particles where they were:
+    sd 30 % wide at seed 1)."""
     from scipy.stats import norm
 
     from fitting._bayesian.grid import compare, grid_posterior
@@ -741,8 +744,9 @@ def test_smc_matches_a_grid_posterior_on_a_curved_ridge():
 
     centre = np.array([0.3, -1.4, 5.7])
     cov = np.diag([0.3, 0.2, 0.1]) ** 2
-    result = _sample_toy(residuals, 3, centre, cov, draws=1000)
+    result = _sample_toy(residuals, 3, centre, cov, draws=1000, moves=moves, seed=seed)
     assert result.converged, result.message
+    assert ("local moves: MALA" in result.reason) == (moves == "mala")
 
     def log_density(U):
         r = curved(U.T)
@@ -794,40 +798,6 @@ def test_smc_samples_a_thin_banana_that_the_priors_leave_whole():
     assert x[:, 1].std() == pytest.approx(exact_sd, rel=0.05)
     assert x[:, 0].std() == pytest.approx(1.0, rel=0.05)
     assert abs(x[:, 1].mean() - exact_mean) < 4 * exact_sd / math.sqrt(result.summary["C_H"]["ess"])
-
-
-def test_smc_with_mala_moves_matches_the_grid_on_the_curved_ridge():
-    """``moves="mala"`` (Langevin steps along the log density's gradient, drift truncated):
-    the curved ridge of the test above within the same Monte Carlo bounds of its grid, the
-    evaluations returning each row's gradient (said in ``reason``)."""
-    from scipy.stats import norm
-
-    from fitting._bayesian.grid import compare, grid_posterior
-
-    def curved(u):
-        return [
-            (u[0] - 0.3) / 0.3,
-            (u[2] - 5.7 - 1.5 * (u[0] - 0.3) ** 2) / 0.1,
-            (u[1] + 1.4) / 0.2,
-        ]
-
-    centre = np.array([0.3, -1.4, 5.7])
-    cov = np.diag([0.3, 0.2, 0.1]) ** 2
-    result = _sample_toy(lambda u: jnp.stack(curved(u)), 3, centre, cov, draws=1000,
-                         moves="mala", seed=1)  # fmt: skip
-    assert result.converged, result.message
-    assert "local moves: MALA" in result.reason
-    lower, upper = centre - [2.4, 1.6, 0.6], centre + [2.4, 1.6, 2.4]
-    grid = grid_posterior(lambda U: -0.5 * sum(x**2 for x in curved(U.T)), lower, upper,
-                          names=NAMES, points=48, to_physical=lambda i, u: np.exp(u))  # fmt: skip
-    errors = compare(result.summary, grid)
-    for n in NAMES:
-        ess = min(result.summary[n]["ess"], result.summary[n]["ess_tail"])
-        assert errors[n]["mean"] < 3.5 / math.sqrt(ess), (n, errors[n])
-        for key, p in (("q05", 0.05), ("median", 0.5), ("q95", 0.95)):
-            se = math.sqrt(p * (1 - p) / ess) / norm.pdf(norm.ppf(p))
-            assert errors[n][key] < 3.5 * se, (n, key, errors[n])
-        assert 0.9 < errors[n]["sd_ratio"] < 1.1, (n, errors[n])
 
 
 @pytest.mark.slow  # a fit and a posterior through the CLI
