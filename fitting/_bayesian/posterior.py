@@ -871,7 +871,7 @@ def sample_posterior(
     _check_options(sampler, likelihood, nu, chains, draws, warmup)
     if moves not in MOVES:
         raise FitError(f"moves must be one of {', '.join(MOVES)}, got {moves!r}")
-    _integrates(noise, likelihood, ("any",))  # a bad combination refused before the fit
+    _integrates(noise, likelihood, ("any factor",))  # options checked before the fit
     prior_map = priors_for(names, priors, scene.priors)
     if fit_result is None:
         fit_result = fit(
@@ -1092,9 +1092,13 @@ def _x_log_density(
     if not gradient:
         return log_density
 
-    def with_gradient(x):
-        out = log_density(x)
-        return jnp.concatenate([out, jax.grad(lambda y: log_density(y)[0])(x)])
+    def with_gradient(x):  # one evaluation for the value, the sums and the gradient
+        def value(y):
+            out = log_density(y)
+            return out[0], out
+
+        grad, out = jax.grad(value, has_aux=True)(x)
+        return jnp.concatenate([out, grad])
 
     return with_gradient
 
@@ -1141,10 +1145,10 @@ def _x_batch_log_density(
         def values(Y):
             return log_density(Y, value, scale, weight)
 
-        out = values(X)
+        # One simulation: the primal is not batched over the tangents (one per coordinate).
         basis = jnp.broadcast_to(jnp.eye(X.shape[1])[:, None, :], (X.shape[1], *X.shape))
-        tangents = jax.vmap(lambda t: jax.jvp(lambda Y: values(Y)[:, 0], (X,), (t,))[1])(basis)
-        return jnp.concatenate([out, tangents.T], axis=1)
+        out, tangents = jax.vmap(lambda t: jax.jvp(values, (X,), (t,)))(basis)
+        return jnp.concatenate([out[0], tangents[:, :, 0].T], axis=1)
 
     key = "|".join(
         [objective.fingerprint(), "x", repr(space), repr(np.asarray(groups).tolist())]
