@@ -44,6 +44,7 @@ def capture_speed(
 DERIVATIVE_OUTPUTS = ("cor_n", "vt_out", "omega_out", "rebound_angle_deg", "contact_time")
 
 
+#: Inputs of :func:`output_derivatives` (impacts-CSV names; ``lambda`` is ``Params.lam``).
 DERIVATIVE_INPUTS = (
     "f0", "C_A", "C_H", "friction", "K", "radius", "density", "lambda",
     "speed", "angle_deg", "omega0",

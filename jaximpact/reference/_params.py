@@ -8,19 +8,23 @@ from dataclasses import dataclass, field
 
 from .jkr import energy_loss, snap_off
 
+#: Values of ``Params.rolling_moments``.
 ROLLING_MOMENTS = ("none", "analytical", "lambda")
 
 
+#: Values of ``Params.friction_load``.
 FRICTION_LOADS = ("net", "hertz")
 
 
 NORMAL_LAWS = ("brach_dunn", "dmt", "jkr")
 
 
-TABLE1_SPEED = 1.66  # m/s, the paper's reference impact speed
+#: The paper's reference impact speed, m/s.
+TABLE1_SPEED = 1.66
 
 
-TABLE1_OMEGA0 = 1e6 * math.pi / 180.0  # 1e6 deg/s in rad/s
+#: The spin of the paper's oblique impacts, 1e6 deg/s in rad/s.
+TABLE1_OMEGA0 = 1e6 * math.pi / 180.0
 
 
 @dataclass(frozen=True)

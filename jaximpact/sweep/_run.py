@@ -42,11 +42,13 @@ from ._store import (
 )
 from ._writer import COMPRESSIONS, _chunk_table, _Writer, parquet_options, writer_threads
 
+#: Impacts per chunk when none is given (float64; see ``DEFAULT_CHUNK_SIZE_FLOAT32``).
 DEFAULT_CHUNK_SIZE = 8192
 # float32: a chunk computes ~7x faster than a float64 one, and a chunk's fixed costs (dispatch,
 # Parquet) weigh more: at 8192 a sweep ran 0.60 of ``simulate``'s marginal rate on one device
 # and 0.79 on two (each device solving its part on its own, with loop kernels), at 32,768
 # 0.97-1.07 and 0.96 (BENCHMARKS.md, "Large sweeps").
+#: Impacts per chunk when none is given, in float32.
 DEFAULT_CHUNK_SIZE_FLOAT32 = 32768
 
 

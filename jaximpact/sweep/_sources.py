@@ -20,6 +20,7 @@ from .._io.tables import (
     read_impacts,
 )
 
+#: The names a ``--grid`` axis may have: the impact columns and the scene parameter columns.
 GRID_NAMES = IMPACT_COLUMNS + IMPACT_PARAMETER_COLUMNS
 
 

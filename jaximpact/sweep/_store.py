@@ -22,6 +22,7 @@ from .._io.tables import (
 )
 from ._sources import SweepError
 
+#: The format identifier a sweep's manifests carry (``"format"``); others are refused.
 FORMAT = "jaximpact-sweep/1"
 
 
