@@ -73,9 +73,12 @@ def test_benchmarks_sections_named_in_the_docs_exist():
     assert not missing, "no such section in BENCHMARKS.md: " + ", ".join(missing)
 
 
-def _readme_scene_table():
-    """``{(section, key)}`` named in README's scene reference table."""
-    text = (ROOT / "README.md").read_text()
+SCENE_REFERENCE = ROOT / "docs" / "scene_files.md"
+
+
+def _scene_table():
+    """``{(section, key)}`` named in the scene reference table (docs/scene_files.md)."""
+    text = SCENE_REFERENCE.read_text()
     keys, section = set(), None
     for line in text.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
@@ -88,12 +91,12 @@ def _readme_scene_table():
     return keys
 
 
-def test_readme_scene_table_names_every_scene_key():
-    """Every key a scene file accepts is in README's reference table (the table missed
-    ``[model] tangential``, ``[contact] G_star`` and ``[priors]``)."""
+def test_scene_table_names_every_scene_key():
+    """Every key a scene file accepts is in the reference table of docs/scene_files.md (the
+    table missed ``[model] tangential``, ``[contact] G_star`` and ``[priors]``)."""
     from jaximpact._io.scene_files import ALLOWED
 
-    documented = _readme_scene_table()
+    documented = _scene_table()
     missing = [
         f"[{section}] {key}"
         for section, keys in ALLOWED.items()
@@ -104,21 +107,22 @@ def test_readme_scene_table_names_every_scene_key():
     assert not missing, missing
     assert (
         any(section == "priors" for section, _ in documented)
-        or "`[priors]`" in (ROOT / "README.md").read_text()
+        or "`[priors]`" in SCENE_REFERENCE.read_text()
     )
 
 
-def test_readme_states_the_code_defaults():
-    """README's defaults are the code's (it said ring_width 1e-6 where the code used 1e-8)."""
+def test_scene_reference_states_the_code_defaults():
+    """The scene reference's defaults are the code's (it said ring_width 1e-6 where the code
+    used 1e-8)."""
     import jax.numpy as jnp
 
     import jaximpact as ji
     from jaximpact._engine.solvers import default_slip_width, default_tolerances
 
-    def g(x):  # README's spelling of a small number: 3e-4, not 0.0003 or 3e-04
+    def g(x):  # the reference's spelling of a small number: 3e-4, not 0.0003 or 3e-04
         return f"{x:.0e}".replace("e-0", "e-")
 
-    text = (ROOT / "README.md").read_text()
+    text = SCENE_REFERENCE.read_text()
     row = next(line for line in text.splitlines() if "`slip_width`, `ring_width`" in line)
     assert f"ring: {g(ji.Solver().ring_width)}" in row
     assert f"slip: {g(default_slip_width(jnp.float64, None))} in float64" in row
@@ -131,3 +135,44 @@ def test_readme_states_the_code_defaults():
     s = ji.Solver()
     assert f"({s.max_steps})" in row and f"({s.dt:g})" in row
     assert f"({s.stiffness_limit:g})" in row
+
+
+README_MAX_LINES = 250
+
+
+def test_readme_is_a_front_door():
+    """README.md stays short (the details live in docs/) and names no dated timings."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= README_MAX_LINES
+    dates = re.findall(r"\b20\d\d-\d\d-\d\d\b", text)
+    assert not dates, f"dated figures belong in BENCHMARKS.md: {dates}"
+
+
+def test_readme_test_command_is_what_ci_runs():
+    """README's install-and-test command is the one .ci/run runs."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    install = re.search(r"pip install -e (\S+)", re.search(r"python -m pip install -e \S+", ci)[0])
+    assert install, "no install line in .ci/run"
+    command = f"pip install -e {install[1]} && python -m pytest -q"
+    assert command in readme, command
+    assert "\npython -m pytest -q\n" in ci
+
+
+def test_docs_pages_are_in_the_site_nav():
+    """Every page under docs/ is in mkdocs.yml's nav (mkdocs also warns, in its strict build)."""
+    nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    pages = [p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*.md")]
+    assert pages
+    missing = [p for p in pages if not p.startswith("notebooks/") and p not in nav]
+    assert not missing, missing
+
+
+def test_readme_links_resolve():
+    """README's relative links (to docs/ pages, notebooks, figures) name files that exist; the
+    site's own links are checked by its strict build."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    assert targets
+    missing = [t for t in targets if "://" not in t and not (ROOT / t).exists()]
+    assert not missing, missing
