@@ -138,6 +138,8 @@ def describe(module_name: str, name: str) -> dict:
     value = getattr(_module(module_name), name)
     if inspect.isclass(value) or inspect.isfunction(value) or inspect.isroutine(value):
         doc = value.__dict__.get("__doc__") if inspect.isclass(value) else value.__doc__
+        if inspect.isclass(value) and (doc or "").startswith(value.__name__ + "("):
+            doc = ""  # the signature that dataclasses (and equinox) write where none is given
         return {
             "kind": "object",
             "path": f"{value.__module__}.{value.__qualname__}",

@@ -53,3 +53,16 @@ def test_the_check_catches_a_missing_docstring(hooks, monkeypatch):
     module = sys.modules["jaximpact.sweep"]
     monkeypatch.setattr(module, "read_sweep", undocumented)
     assert hooks.missing_docstrings() == ["jaximpact.sweep.read_sweep"]
+
+
+def test_the_check_sees_through_a_dataclass_signature(hooks, monkeypatch):
+    """A dataclass (or equinox module) without a docstring gets its signature as ``__doc__``:
+    not a docstring."""
+    import dataclasses
+
+    @dataclasses.dataclass
+    class SweepSummary:
+        chunks: int
+
+    monkeypatch.setattr(sys.modules["jaximpact.sweep"], "SweepSummary", SweepSummary)
+    assert hooks.missing_docstrings() == ["jaximpact.sweep.SweepSummary"]
