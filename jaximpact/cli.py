@@ -32,19 +32,6 @@ EXIT_BAD_INPUT = 2
 #: group, each a function ``add(subparsers)``. jaximpact itself never imports ``fitting``.
 PLUGIN_GROUP = "jaximpact.commands"
 
-SECTION_OF = {
-    "radius": "particle",
-    "density": "particle",
-    "K": "contact",
-    "f0": "contact",
-    "C_A": "contact",
-    "C_H": "contact",
-    "friction": "contact",
-    "lambda": "model",
-    "G_star": "contact",  # model.tangential = "mindlin"
-    "w": "contact",  # model.normal = "dmt", "jkr", "thornton_ning"
-    "p_y": "contact",  # model.normal = "thornton_ning"
-}
 PAPER_IMPACTS = {
     "speed": [1.66] * 3,
     "angle_deg": [0.0, 40.0, -40.0],
@@ -66,12 +53,11 @@ SHOWN_COLUMNS = (
 
 
 def scene_with_overrides(scene, overrides: dict):
-    """The scene with per-impact parameter arrays (impacts-CSV columns) put in place."""
-    sections = {}
-    for name, values in overrides.items():
-        field = "lambda_" if name == "lambda" else name
-        sections.setdefault(SECTION_OF[name], {})[field] = values
-    return scene.replace(**sections) if sections else scene
+    """The scene with per-impact parameter arrays (impacts-CSV columns) put in place (names
+    of ``jaximpact.parameters.PARAMETERS``)."""
+    from .parameters import with_parameters
+
+    return with_parameters(scene, overrides)
 
 
 def _table(columns: dict, names) -> str:
@@ -200,7 +186,7 @@ def _simulate_from_cache(scene, table):
     terms (not all normal without spin), adhesion and rolling-moment terms are not left out
     for zero values, and the solver method is resolved here from the concrete values exactly
     as ``simulate`` does. Returns ``None`` (use the normal path) otherwise, or with the cache
-    off, or on any problem building the program.
+    off, for a scene with a ``[target]`` sphere, or on any problem building the program.
     """
     import jax
     import numpy as np
@@ -212,6 +198,8 @@ def _simulate_from_cache(scene, table):
     n = table.speed.size
     if not jax.config.jax_compilation_cache_dir or not 1 <= n <= CACHED_SIMULATE_MAX:
         return None
+    if scene.target is not None:
+        return None  # sphere-sphere: this program was never checked with a [target]
     try:
         dtype = jax.numpy.result_type(float)
         values = {k: np.asarray(v, dtype=float) for k, v in scene_parameters(scene).items()}

@@ -44,6 +44,8 @@ import numpy as np
 import jaximpact
 from jaximpact import scene_parameters, stiffness_estimate
 from jaximpact._engine.simulate import _simulate
+from jaximpact.parameters import FITTABLE as FITTABLE_NAMES
+from jaximpact.parameters import parameter_value, place, with_parameters
 
 from .._data import OBSERVABLES, Observations, load_observations
 
@@ -62,20 +64,9 @@ class FitError(ValueError):
     """A problem with a fit's inputs: unknown parameter, unusable data, bad option."""
 
 
-#: Fittable parameters: ``name -> (scene section, field)``.
-FITTABLE = {
-    "C_A": ("contact", "C_A"),
-    "C_H": ("contact", "C_H"),
-    "f0": ("contact", "f0"),
-    "friction": ("contact", "friction"),
-    "K": ("contact", "K"),
-    "G_star": ("contact", "G_star"),  # with model.tangential = "mindlin"
-    "w": ("contact", "w"),  # work of adhesion, with model.normal = "dmt", "jkr", ...
-    "p_y": ("contact", "p_y"),  # limiting contact pressure, with "thornton_ning"
-    "lambda": ("model", "lambda_"),
-    "radius": ("particle", "radius"),
-    "density": ("particle", "density"),
-}
+#: Fittable parameters: ``name -> (scene section, field)``, in the order of the registry
+#: (``jaximpact.parameters``: each one's unit, range, default prior and transform).
+FITTABLE = {name: place(name) for name in FITTABLE_NAMES}
 
 #: Default residual scales (used where an observation has no sigma), as text for reports.
 DEFAULT_SCALES = {
@@ -150,8 +141,9 @@ def check_names(params: Sequence[str], scene: jaximpact.Scene | None = None) -> 
 
 def get_parameter(scene: jaximpact.Scene, name: str) -> float:
     """The scene's value of a fittable parameter (a float; must be a scalar)."""
-    section, field = FITTABLE[name]
-    value = np.asarray(getattr(getattr(scene, section), field), dtype=float)
+    if name not in FITTABLE:
+        raise KeyError(name)
+    value = np.asarray(parameter_value(scene, name), dtype=float)
     if value.ndim != 0:
         raise FitError(f"scene parameter {name} is an array; a fitted parameter must be scalar")
     return float(value)
@@ -159,11 +151,10 @@ def get_parameter(scene: jaximpact.Scene, name: str) -> float:
 
 def set_parameters(scene: jaximpact.Scene, values: Mapping[str, object]) -> jaximpact.Scene:
     """A copy of ``scene`` with parameters (fittable names; floats or traced arrays) replaced."""
-    sections: dict[str, dict] = {}
-    for name, value in values.items():
-        section, field = FITTABLE[name]
-        sections.setdefault(section, {})[field] = value
-    return scene.replace(**sections) if sections else scene
+    unknown = [name for name in values if name not in FITTABLE]
+    if unknown:
+        raise KeyError(unknown[0])
+    return with_parameters(scene, values)
 
 
 @jax.jit

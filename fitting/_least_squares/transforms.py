@@ -9,7 +9,6 @@ design accept and refuse the same values.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import jax
@@ -17,14 +16,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaximpact._model.ranges import RANGES, range_text
+from jaximpact.parameters import PARAMETERS
 
 from .objective import FitError
 
 __all__ = ["BOUNDS", "dphys_du", "to_physical", "to_unbounded"]
 
 #: Bounded parameters: ``name -> (lo, hi)``, the ends of their documented range (a start must
-#: lie strictly between them); all other fittable parameters are positive (log scale).
-BOUNDS = {"friction": (RANGES["friction"].lo, RANGES["friction"].hi)}
+#: lie strictly between them); all other fittable parameters are positive (log scale). The
+#: registry's transform says which (``jaximpact.parameters``: ``"logit"`` or ``"log"``).
+BOUNDS = {name: (p.lower, p.upper) for name, p in PARAMETERS.items() if p.transform == "logit"}
 
 
 def to_unbounded(names: Sequence[str], values) -> np.ndarray:
@@ -50,15 +51,14 @@ def to_unbounded(names: Sequence[str], values) -> np.ndarray:
                     f"a logit scale over its range {allowed.interval()}, whose ends it cannot "
                     "reach); give a starting value inside"
                 )
-            x = (p - lo) / (hi - lo)
-            u.append(math.log(x / (1 - x)))
+            u.append(PARAMETERS[name].to_unbounded(p))
         else:
             if not p > 0:
                 raise FitError(
                     f"initial {name} = {p!r} must be finite and > 0 (it is fitted on a log "
                     "scale); give a positive starting value"
                 )
-            u.append(math.log(p))
+            u.append(PARAMETERS[name].to_unbounded(p))
     return np.array(u)
 
 

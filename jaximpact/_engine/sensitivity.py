@@ -5,35 +5,20 @@ import jax
 import jax.numpy as jnp
 
 from .._model.scene import Scene
+from ..parameters import PARAMETERS, parameter_value, with_parameters
 from .simulate import simulate
 
-#: Outputs and inputs that :func:`output_jacobian` knows (names of the impacts CSV).
+#: Outputs that :func:`output_jacobian` differentiates, and the inputs it differentiates by
+#: default (names of the impacts CSV); it takes any of the impact's three and every parameter
+#: of the registry (``jaximpact.parameters.PARAMETERS``: also ``G_star``, ``w``, ``p_y`` where
+#: the scene's laws use them, ``radius2``, ``density2``, ``omega2`` with a ``[target]``).
 OUTPUTS = ("cor_n", "vt_out", "omega_out", "rebound_angle_deg", "contact_time")
 INPUTS = (
     "f0", "C_A", "C_H", "friction", "K", "radius", "density", "lambda",
     "speed", "angle_deg", "omega0",
 )  # fmt: skip
-_SECTIONS = {
-    "f0": ("contact", "f0"), "C_A": ("contact", "C_A"), "C_H": ("contact", "C_H"),
-    "friction": ("contact", "friction"), "K": ("contact", "K"),
-    "radius": ("particle", "radius"), "density": ("particle", "density"),
-    "lambda": ("model", "lambda_"),
-    "G_star": ("contact", "G_star"),  # model.tangential = "mindlin" only
-    "w": ("contact", "w"),  # model.normal = "dmt", "jkr" or "thornton_ning" only
-    "p_y": ("contact", "p_y"),  # model.normal = "thornton_ning" only
-    # a second sphere ([target]) only
-    "radius2": ("target", "radius"),
-    "density2": ("target", "density"),
-    "omega2": ("target", "omega0"),
-}  # fmt: skip
-
-
-def _with_values(scene: Scene, values: dict) -> Scene:
-    sections: dict = {}
-    for name, value in values.items():
-        section, field = _SECTIONS[name]
-        sections.setdefault(section, {})[field] = value
-    return scene.replace(**sections) if sections else scene
+#: The impact's own inputs (the others are scene parameters).
+IMPACT_INPUTS = ("speed", "angle_deg", "omega0")
 
 
 def output_jacobian(
@@ -42,7 +27,8 @@ def output_jacobian(
     """Jacobian of ``OUTPUTS`` with respect to ``inputs`` for each impact of a batch.
 
     **Arguments:** the scene and impacts as in `simulate` (1-D arrays or scalars); `inputs`,
-    names from ``INPUTS``; `mode`: ``"fwd"`` (``jax.jacfwd``, cheap for few inputs) or ``"rev"``
+    names from ``IMPACT_INPUTS`` and ``jaximpact.parameters.PARAMETERS`` (default
+    ``INPUTS``); `mode`: ``"fwd"`` (``jax.jacfwd``, cheap for few inputs) or ``"rev"``
     (``jax.jacrev``); `program`: as in `simulate` (``"compact"`` compiles in about half the
     time).
 
@@ -50,6 +36,8 @@ def output_jacobian(
 
     Each impact is its own function of its own inputs (the batch does not change a lane's
     arithmetic), so one Jacobian of the batch sum gives every impact's row.
+
+    **Raises:** `ValueError` for an input name that is neither an impact's nor a parameter's.
     """
     speed, angle_deg, omega0 = jnp.broadcast_arrays(
         *(
@@ -58,12 +46,18 @@ def output_jacobian(
         )
     )
     size = speed.shape[0]
+    unknown = [k for k in inputs if k not in IMPACT_INPUTS and k not in PARAMETERS]
+    if unknown:
+        raise ValueError(
+            f"unknown input(s) {unknown}; known: {', '.join(IMPACT_INPUTS)} and the scene's "
+            f"parameters {', '.join(PARAMETERS)}"
+        )
     current = {
         "speed": speed, "angle_deg": angle_deg, "omega0": omega0,
         **{
-            k: getattr(getattr(scene, s), f)
-            for k, (s, f) in _SECTIONS.items()
-            if getattr(scene, s) is not None
+            k: parameter_value(scene, k)
+            for k in PARAMETERS
+            if parameter_value(scene, k) is not None
         },
     }  # fmt: skip
     x0 = jnp.stack(
@@ -73,8 +67,8 @@ def output_jacobian(
 
     def outputs(x):
         values = dict(zip(inputs, x, strict=True))
-        impact = {k: values.pop(k, current[k]) for k in ("speed", "angle_deg", "omega0")}
-        res = simulate(_with_values(scene, values), **impact, adjoint=adjoint, program=program)
+        impact = {k: values.pop(k, current[k]) for k in IMPACT_INPUTS}
+        res = simulate(with_parameters(scene, values), **impact, adjoint=adjoint, program=program)
         return {k: getattr(res, k) for k in OUTPUTS}
 
     # Each impact depends on its own inputs only: perturbing input j of every impact at once

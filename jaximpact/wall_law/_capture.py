@@ -48,6 +48,7 @@ import numpy as np
 
 from .._engine.simulate import scene_parameters
 from .._model.scene import SceneError
+from ..parameters import with_parameters
 
 __all__ = ["CaptureSpeed", "CaptureStatus", "adhesion_speed", "capture_speed", "scene_with"]
 
@@ -58,20 +59,6 @@ RTOL = 1e-9  # relative tolerance of the root
 MAX_ITERATIONS = 40
 EPS = 1e-4  # relative offset above v_c of the derivative points (Richardson to v_c)
 COMPACT_LANES = 64  # searches of at most this many lanes run the compact program
-
-SECTION_OF = {
-    "radius": ("particle", "radius"),
-    "density": ("particle", "density"),
-    "K": ("contact", "K"),
-    "f0": ("contact", "f0"),
-    "C_A": ("contact", "C_A"),
-    "C_H": ("contact", "C_H"),
-    "friction": ("contact", "friction"),
-    "G_star": ("contact", "G_star"),
-    "w": ("contact", "w"),
-    "p_y": ("contact", "p_y"),
-    "lambda": ("model", "lambda_"),
-}
 
 
 class CaptureStatus:
@@ -136,12 +123,9 @@ class CaptureSpeed(eqx.Module):
 
 
 def scene_with(scene, params: dict):
-    """``scene`` with its float parameters replaced by ``params`` (impacts-CSV names)."""
-    sections: dict = {}
-    for name, value in params.items():
-        section, field = SECTION_OF[name]
-        sections.setdefault(section, {})[field] = value
-    return scene.replace(**sections)
+    """``scene`` with its float parameters replaced by ``params`` (impacts-CSV names: those of
+    ``jaximpact.parameters.PARAMETERS``)."""
+    return with_parameters(scene, params)
 
 
 def adhesion_speed(radius, density, K, f0, w=None, law="brach_dunn"):
@@ -200,47 +184,18 @@ def capture_speed(
     (module docstring). The search runs on concrete values: not under ``jax.jit`` or
     ``jax.vmap`` (pass arrays instead: the values are batched).
 
-    **Raises:** `SceneError` (a `ValueError`) for inputs outside their ranges, or traced
-    primal values (under ``jit``/``vmap``).
+    **Raises:** `SceneError` (a `ValueError`) for inputs outside their ranges, traced primal
+    values (under ``jit``/``vmap``), or a scene with a ``[target]`` sphere.
     """
+    speed_range = _checked_options(scene, rtol, speed_range)
     params = scene_parameters(scene)
     adhesive = bool(scene.model.adhesion)
-    if not 0 < rtol < 1e-2:
-        raise SceneError(f"rtol must be in (0, 0.01), got {rtol!r}")
-    if speed_range is not None:
-        lo, hi = (float(x) for x in speed_range)
-        if not 0 < lo < hi <= SPEED_MAX:
-            raise SceneError(f"speed_range must satisfy 0 < lo < hi <= {SPEED_MAX:g} m/s")
-        speed_range = (lo, hi)
     names = tuple(params)
     evaluations = []
 
     def search(values, angle, omega):
-        leaves = [*values, angle, omega]
-        if not all(_is_concrete(x) for x in leaves):
-            raise SceneError(
-                "capture_speed needs concrete values: call it outside jax.jit and jax.vmap "
-                "(jax.grad, jax.jacfwd and jax.jvp work; pass arrays to batch)"
-            )
-        a, w = np.asarray(angle, dtype=float), np.asarray(omega, dtype=float)
-        if not np.all(np.isfinite(a) & (np.abs(a) < 90.0)):
-            raise SceneError("angle_deg must be finite and in (-90, 90) deg")
-        if not np.all(np.isfinite(w) & (np.abs(w) <= 1e9)):
-            raise SceneError("omega0 must be finite and in [-1e9, 1e9] rad/s")
-        memo = (
-            _structure_key(scene, names),
-            tuple(np.asarray(v, dtype=float).tobytes() for v in (*values, a, w)),
-            tuple(np.shape(v) for v in (*values, a, w)),
-            rtol,
-            speed_range,
-        )
-        if memo in _SEARCHES:  # e.g. the value, then its gradient: one search
-            out = _SEARCHES[memo]
-        else:
-            out = _search(scene, names, values, a, w, adhesive, rtol, speed_range)
-            _SEARCHES[memo] = out
-            while len(_SEARCHES) > _SEARCHES_KEPT:
-                _SEARCHES.popitem(last=False)
+        a, w = _checked_concrete(values, angle, omega)
+        out = _remembered_search(scene, names, values, a, w, adhesive, rtol, speed_range)
         evaluations.append(out["evaluations"])
         dtype = jnp.result_type(float)
         fields = (out["speed"], out["status"].astype(float), out["lo"], out["hi"], out["next"])
@@ -274,6 +229,59 @@ def capture_speed(
         next_capture=jax.lax.stop_gradient(again),
         evaluations=int(evaluations[-1]) if evaluations else 0,
     )
+
+
+def _checked_options(scene, rtol, speed_range):
+    """``capture_speed``'s scene and options checked (``SceneError``); the speed range as
+    floats."""
+    if scene.target is not None:  # the scan and the margin are those of a wall
+        raise SceneError(
+            "capture_speed is the capture of impacts on a wall; the scene has a [target] "
+            "sphere (remove it)"
+        )
+    if not 0 < rtol < 1e-2:
+        raise SceneError(f"rtol must be in (0, 0.01), got {rtol!r}")
+    if speed_range is not None:
+        lo, hi = (float(x) for x in speed_range)
+        if not 0 < lo < hi <= SPEED_MAX:
+            raise SceneError(f"speed_range must satisfy 0 < lo < hi <= {SPEED_MAX:g} m/s")
+        speed_range = (lo, hi)
+    return speed_range
+
+
+def _checked_concrete(values, angle, omega) -> tuple[np.ndarray, np.ndarray]:
+    """The search's inputs checked concrete and in range (``SceneError``); the angle and spin
+    as numpy arrays."""
+    leaves = [*values, angle, omega]
+    if not all(_is_concrete(x) for x in leaves):
+        raise SceneError(
+            "capture_speed needs concrete values: call it outside jax.jit and jax.vmap "
+            "(jax.grad, jax.jacfwd and jax.jvp work; pass arrays to batch)"
+        )
+    a, w = np.asarray(angle, dtype=float), np.asarray(omega, dtype=float)
+    if not np.all(np.isfinite(a) & (np.abs(a) < 90.0)):
+        raise SceneError("angle_deg must be finite and in (-90, 90) deg")
+    if not np.all(np.isfinite(w) & (np.abs(w) <= 1e9)):
+        raise SceneError("omega0 must be finite and in [-1e9, 1e9] rad/s")
+    return a, w
+
+
+def _remembered_search(scene, names, values, a, w, adhesive, rtol, speed_range) -> dict:
+    """:func:`_search`, or its result for the same inputs kept from a recent call."""
+    memo = (
+        _structure_key(scene, names),
+        tuple(np.asarray(v, dtype=float).tobytes() for v in (*values, a, w)),
+        tuple(np.shape(v) for v in (*values, a, w)),
+        rtol,
+        speed_range,
+    )
+    if memo in _SEARCHES:  # e.g. the value, then its gradient: one search
+        return _SEARCHES[memo]
+    out = _search(scene, names, values, a, w, adhesive, rtol, speed_range)
+    _SEARCHES[memo] = out
+    while len(_SEARCHES) > _SEARCHES_KEPT:
+        _SEARCHES.popitem(last=False)
+    return out
 
 
 # The last few searches of this process, by scene structure and input values: `jax.grad`
@@ -364,7 +372,6 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
     g_scan = np.empty((n, points))
     for k in range(points):  # one batch shape throughout: one compiled program
         st_scan[:, k], g_scan[:, k] = run(grid[:, k])
-    evaluations = points
 
     speed = np.full(n, np.nan)
     lo, hi = np.full(n, np.nan), np.full(n, np.nan)
@@ -374,8 +381,33 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
     all_cap = status == CaptureStatus.ALL_CAPTURED
     speed[none], speed[all_cap] = grid[none, 0], np.inf
     active = np.isin(status, (CaptureStatus.THRESHOLD, CaptureStatus.MULTIPLE))
-    idx = np.arange(n)
+    a, b, estimate, done, steps = _secant_search(run, grid, g_scan, top, active, status, rtol)
+    still = ~done
+    status[still & active] = CaptureStatus.NOT_CONVERGED
+    ok = active & (status != CaptureStatus.FAILED)
+    speed[ok] = estimate[ok]
+    lo[active], hi[active] = a[active], b[active]
+    for mask, value in ((none, grid[:, 0]), (all_cap, grid[:, -1])):
+        lo[mask] = np.where(none[mask], 0.0, value[mask])
+        hi[mask] = np.where(none[mask], value[mask], np.inf)
+    return {
+        "speed": speed,
+        "status": status,
+        "lo": lo,
+        "hi": hi,
+        "next": again,
+        "evaluations": points + steps,
+    }
 
+
+def _secant_search(run, grid, g_scan, top, active, status, rtol) -> tuple:
+    """The root find of the module docstring from the scan's bracket, for the ``active``
+    lanes (every lane is simulated at each step: one batch shape); a lane whose impact fails
+    gets status ``FAILED`` (``status`` is updated in place). Returns ``(a, b, estimate, done,
+    steps)``: each lane's captured and rebound ends of the bracket, its estimate, whether it
+    stopped (converged or failed), and the number of steps run."""
+    n, points = grid.shape
+    idx = np.arange(n)
     # bracket: a captured, b < c the next rebounds (c may be missing: NaN)
     t = np.clip(top, 0, points - 1)
     a = grid[idx, t]
@@ -386,6 +418,7 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
     lefts = np.zeros(n, int)  # consecutive steps that landed on a capture
     done = ~active
     estimate = np.where(active, b, grid[:, 0])  # finite: every lane is simulated each step
+    steps = 0
     for _ in range(MAX_ITERATIONS):
         if done.all():
             break
@@ -400,7 +433,7 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
         x = np.where(lefts >= 2, 0.5 * (a + b), x)
         x = np.where(done, estimate, x)
         st, g = run(x)
-        evaluations += 1
+        steps += 1
         bad = ~done & (st >= 2)
         status[bad] = CaptureStatus.FAILED
         done |= bad
@@ -418,22 +451,7 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
         # the margin the next secant would be meaningless)
         converged = ~done & (((b - a) <= rtol * b) | (reb & (step <= rtol * b)))
         done |= converged
-    still = ~done
-    status[still & active] = CaptureStatus.NOT_CONVERGED
-    ok = active & (status != CaptureStatus.FAILED)
-    speed[ok] = estimate[ok]
-    lo[active], hi[active] = a[active], b[active]
-    for mask, value in ((none, grid[:, 0]), (all_cap, grid[:, -1])):
-        lo[mask] = np.where(none[mask], 0.0, value[mask])
-        hi[mask] = np.where(none[mask], value[mask], np.inf)
-    return {
-        "speed": speed,
-        "status": status,
-        "lo": lo,
-        "hi": hi,
-        "next": again,
-        "evaluations": evaluations,
-    }
+    return a, b, estimate, done, steps
 
 
 def classify(scan_status) -> tuple[np.ndarray, np.ndarray]:
