@@ -1,0 +1,1 @@
+"""The ``fit`` and ``design`` commands that ``fitting`` adds to ``jaximpact`` (``fitting.cli``)."""
