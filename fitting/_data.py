@@ -245,26 +245,7 @@ def load_observations(path) -> Observations:
             _IMPACT_NAMES + OBSERVABLES + tuple(f"sigma_{n}" for n in OBSERVABLES) + ("status",)
         )
         rows.check_header(allowed, ("speed", "angle_deg"))
-        for name in header:
-            if name.startswith("sigma_") and name.removeprefix("sigma_") not in header:
-                raise _fail(
-                    path,
-                    rows.header_line,
-                    name,
-                    f"no column {name.removeprefix('sigma_')!r} for it",
-                )
-        if "status" in header and "captured" in header:
-            raise _fail(
-                path, rows.header_line, "status", "give capture as 'status' or 'captured', not both"
-            )
-        if not observed and "status" not in header:
-            raise _fail(
-                path,
-                rows.header_line,
-                None,
-                f"no observed columns; expected some of {', '.join(OBSERVABLES)} or status "
-                "(or, for the long layout, an 'observable' column)",
-            )
+        _check_wide_header(path, header, rows.header_line, observed)
         for line, fields in rows.records():
             impact = builder.impact(line, fields)
             for name in header:
@@ -281,6 +262,29 @@ def load_observations(path) -> Observations:
                     continue  # not observed on this row
                 builder.add(line, impact, name, fields[name], sigma_text, (name, sigma_column))
     return builder.build(rows.preamble, layout, rows.header_line)
+
+
+def _check_wide_header(path, header, header_line: int, observed) -> None:
+    """A wide file's header beyond its known names: each ``sigma_X`` has its ``X``, capture is
+    given one way, and something is observed (``DataError`` naming the column)."""
+    for name in header:
+        if name.startswith("sigma_") and name.removeprefix("sigma_") not in header:
+            raise _fail(
+                path,
+                header_line,
+                name,
+                f"no column {name.removeprefix('sigma_')!r} for it",
+            )
+    if "status" in header and "captured" in header:
+        raise _fail(path, header_line, "status", "give capture as 'status' or 'captured', not both")
+    if not observed and "status" not in header:
+        raise _fail(
+            path,
+            header_line,
+            None,
+            f"no observed columns; expected some of {', '.join(OBSERVABLES)} or status "
+            "(or, for the long layout, an 'observable' column)",
+        )
 
 
 def _add_status(builder: _Builder, path, line: int, impact, text: str) -> None:

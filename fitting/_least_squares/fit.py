@@ -1,55 +1,49 @@
 """Fitting driver: solvers, multi-start, uncertainty, identifiability and misfit checks.
 
-The solvers work on unconstrained variables ``u`` (``_transforms``: ``p = exp(u)`` for positive
-parameters, a scaled sigmoid for friction). The default solver is Levenberg-Marquardt
-(``_lm``), driven on the host by one compiled program that returns the residuals and their
-Jacobian (forward mode) for all starts at once (``_program``); optax Adam or L-BFGS minimize
-``cost = 1/2 sum r^2`` in a compiled loop instead, with the gradient ``J^T r`` from forward mode
-as well, and use the same program for the final Jacobian.
+The solvers (``solvers``) work on unconstrained variables ``u`` (``_transforms``: ``p =
+exp(u)`` for positive parameters, a scaled sigmoid for friction). The default solver is
+Levenberg-Marquardt (``_lm``), driven on the host by one compiled program that returns the
+residuals and their Jacobian (forward mode) for all starts at once (``_program``); optax Adam
+or L-BFGS minimize ``cost = 1/2 sum r^2`` in a compiled loop instead, with the gradient ``J^T
+r`` from forward mode as well, and use the same program for the final Jacobian.
 
-Uncertainty: with ``J`` the Jacobian of the residuals in ``u`` at the optimum, the covariance
-of ``u`` is ``s^2 (J^T J)^+``, where ``s^2 = 2 cost / (n - p)`` (the residual variance) unless
-every observation carries its own sigma (then ``s^2 = 1``). The physical covariance follows
-by the delta method, ``D cov_u D`` with ``D = diag(dp/du)``; correlations are the same in both.
-Rank and condition number are those of ``J`` in ``u`` (relative sensitivities for the log
-parameters); a singular value below ``1/MAX_CONDITION`` of the largest counts as zero, and
-the parameters that its direction involves are reported as not identified by the data, with
-infinite standard errors; so is a parameter whose standard error exceeds its value.
+Uncertainty (``diagnose``): with ``J`` the Jacobian of the residuals in ``u`` at the optimum,
+the covariance of ``u`` is ``s^2 (J^T J)^+``, where ``s^2 = 2 cost / (n - p)`` (the residual
+variance) unless every observation carries its own sigma (then ``s^2 = 1``). The physical
+covariance follows by the delta method, ``D cov_u D`` with ``D = diag(dp/du)``; correlations
+are the same in both. Rank and condition number are those of ``J`` in ``u`` (relative
+sensitivities for the log parameters); a singular value below ``1/MAX_CONDITION`` of the
+largest counts as zero, and the parameters that its direction involves are reported as not
+identified by the data, with infinite standard errors; so is a parameter whose standard error
+exceeds its value.
 
-A fit is reported ``converged`` only if the optimizer converged, no impact failed, the
-uncertainty is defined (full rank, finite standard errors) and the model describes the data
-(:data:`MISFIT_P_VALUE`, :data:`MISFIT_RMS`); otherwise its ``status`` says which, and
-``problems`` says why.
+A fit is reported ``converged`` (``verdict``) only if the optimizer converged, no impact
+failed, the uncertainty is defined (full rank, finite standard errors) and the model describes
+the data (:data:`MISFIT_P_VALUE`, :data:`MISFIT_RMS`); otherwise its ``status`` says which,
+and ``problems`` says why. What a fit returns is in ``results``.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 import time
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 
-import diffrax
 import jax
-import jax.numpy as jnp
 import numpy as np
-import optax
-from tqdm.auto import tqdm
 
 import jaximpact
-from jaximpact._engine.devices import compiler_options
-from jaximpact._io.cache import runtime_checks_as_nan
-from jaximpact._model.ranges import IMPLAUSIBLE, RANGES, implausible
 from jaximpact.tables import number_text
 
 from .._data import Observations, load_observations
 from .diagnose import _diagnose
-from .lm import levenberg_marquardt
 from .objective import FitError, Objective, check_names, get_parameter
 from .program import JACOBIAN_MODES, ResidualProgram
+from .results import SAME_COST, SAME_VALUES, STATUSES, FitResult, StartResult, distinct_minima
+from .solvers import _physical, _ranked_runs, _solve_lm, _solve_optax, _start_points
 from .transforms import BOUNDS, to_physical, to_unbounded
+from .verdict import _implausible_impacts, _verdict
 
 __all__ = [
     "BOUNDS",
@@ -62,219 +56,12 @@ __all__ = [
     "to_unbounded",
 ]
 
+# Names other modules, tests and notebooks import from here (the driver's pieces moved to
+# ``results``, ``solvers`` and ``verdict``).
+_REEXPORTED = (FitError, SAME_COST, SAME_VALUES, distinct_minima, _diagnose, _implausible_impacts)
+
 #: Solver names accepted by :func:`fit`.
 SOLVERS = ("lm", "adam", "lbfgs")
-
-#: Values of :attr:`FitResult.status`, in the order they are checked.
-STATUSES = ("not converged", "undetermined", "misfit", "converged")
-
-
-@dataclass
-class StartResult:
-    """One start of a multi-start fit: initial and final values, cost, convergence."""
-
-    initial: dict[str, float]
-    values: dict[str, float]
-    cost: float
-    converged: bool
-    steps: int
-    message: str
-
-
-@dataclass
-class FitResult:
-    """Result of :func:`fit`.
-
-    Attributes:
-        params: fitted parameter names.
-        values, stderr: ``{name: float}``, physical units (stderr ``inf`` where the data do not
-            determine the parameter, NaN where no residual variance exists).
-        correlation, covariance: ``(p, p)`` numpy arrays, physical parameters.
-        cost: ``1/2 sum r^2`` at the optimum (residuals in scales).
-        status: ``"converged"``, ``"not converged"`` (optimizer, failed impacts, or stuck
-            where the model captures impacts that the data show rebounding),
-            ``"undetermined"`` (the uncertainty is undefined: rank-deficient Jacobian or
-            non-finite standard errors) or ``"misfit"`` (the model does not describe the data).
-        converged: ``status == "converged"``: the only state in which the values and standard
-            errors can be taken as the answer.
-        optimizer_converged: the best start met the optimizer's convergence test.
-        problems: why the status is not ``"converged"`` (empty when it is).
-        n_data, dof: observations, and ``n_data - len(params)``.
-        rank, condition_number, singular_values: of the residual Jacobian in the solver
-            variables.
-        sensitivity: ``{name: |dr/d ln p|}``: how much the residual vector (in scales) changes
-            per relative change of each parameter.
-        unidentifiable: names of the parameters the data do not determine.
-        reduced_chi2: ``2 cost / dof`` when every observation has a sigma, else NaN;
-            ``p_value``: its chi-square upper tail probability.
-        rms_residual: ``sqrt(2 cost / n_data)``, in scales.
-        residual_scale: ``s``, the factor applied to the standard errors (1 if sigma is known).
-        warnings: human-readable warnings (identifiability, convergence, failures).
-        timings: seconds: ``compile`` (the programs, or loading them), ``solve`` (all starts),
-            ``total`` (including data loading and checks).
-        solver, jacobian: ``"lm"``, ``"adam"`` or ``"lbfgs"``; ``"fwd"`` or ``"rev"``.
-        program: counts of the residual program's ``traces``, ``compiles`` and ``calls``, and
-            where it came from (``source``: traced, cache (traced before; compiled, or
-            loaded from JAX's compilation cache) or memory).
-        starts: every start, best first.
-        residuals: the weighted residuals at the optimum.
-        scene: the scene with the fitted values in place.
-        objective: the `Objective` (for reports and plots).
-        message: the status and its reasons, one line.
-    """
-
-    params: tuple[str, ...]
-    values: dict[str, float]
-    stderr: dict[str, float]
-    correlation: np.ndarray
-    covariance: np.ndarray
-    cost: float
-    converged: bool
-    n_data: int
-    condition_number: float
-    residual_scale: float
-    warnings: list[str]
-    timings: dict[str, float]
-    solver: str
-    starts: list[StartResult]
-    residuals: np.ndarray
-    scene: jaximpact.Scene
-    objective: Objective = field(repr=False)
-    message: str = ""
-    status: str = "converged"
-    optimizer_converged: bool = True
-    problems: list[str] = field(default_factory=list)
-    dof: int = 0
-    rank: int = 0
-    singular_values: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    sensitivity: dict[str, float] = field(default_factory=dict)
-    unidentifiable: list[str] = field(default_factory=list)
-    reduced_chi2: float = math.nan
-    p_value: float = math.nan
-    rms_residual: float = math.nan
-    jacobian: str = "fwd"
-    program: dict = field(default_factory=dict)
-
-    @property
-    def theta(self) -> np.ndarray:
-        """Fitted values as an array in :attr:`params` order."""
-        return np.array([self.values[n] for n in self.params])
-
-    @property
-    def minima(self) -> list[StartResult]:
-        """The distinct minima the converged starts ended at, best first (one start each):
-        :func:`distinct_minima` of :attr:`starts`."""
-        return distinct_minima(self.starts, self.params)
-
-
-#: Two converged starts ended at the same minimum when their costs agree to this relative
-#: tolerance and their values (in the solver's variables: ln p, a logit for friction) to
-#: this absolute one.
-SAME_COST = 1e-3
-SAME_VALUES = 1e-3
-
-
-def distinct_minima(starts: Sequence[StartResult], names: Sequence[str]) -> list[StartResult]:
-    """The converged ``starts`` with one start per distinct end point, lowest cost first."""
-    kept: list[tuple[StartResult, np.ndarray]] = []
-    for start in sorted((s for s in starts if s.converged), key=lambda s: s.cost):
-        u = np.asarray(to_unbounded(list(names), [start.values[n] for n in names]), float)
-        same = any(
-            abs(start.cost - other.cost) <= SAME_COST * max(abs(other.cost), 1e-12)
-            and np.max(np.abs(u - v)) <= SAME_VALUES
-            for other, v in kept
-        )
-        if not same:
-            kept.append((start, u))
-    return [start for start, _ in kept]
-
-
-def _start_points(names, u0, starts, spread, seed) -> np.ndarray:
-    """``starts`` points in u: the initial guess, then a Latin-hypercube spread around it.
-
-    Positive parameters vary by a factor up to ``spread`` either way; bounded ones by
-    ``+-log(spread)`` in logit space (about the same relative spread for small friction).
-    """
-    points = [np.asarray(u0, dtype=float)]
-    if starts > 1:
-        rng = np.random.default_rng(seed)
-        n = starts - 1
-        # Latin hypercube in [-1, 1]^p: each parameter's range is covered evenly.
-        cube = np.stack(
-            [(rng.permutation(n) + rng.uniform(size=n)) / n * 2 - 1 for _ in names], axis=1
-        )
-        points.extend(np.asarray(u0) + math.log(spread) * cube)
-    return np.stack(points)
-
-
-def _cost_with_forward_gradient(objective, names):
-    """``cost(u) = 1/2 |r(u)|^2`` whose reverse-mode derivative (what optax asks for) is
-    computed in forward mode, ``J^T r`` with ``J`` from ``jax.jacfwd``: the simulator's
-    forward mode compiles and runs several times faster than its reverse mode."""
-
-    def residuals(u):
-        theta = to_physical(names, u)
-        result = objective._simulate_impl(theta, diffrax.ForwardMode())
-        r = objective.residuals_from_result(result, objective.hertz_time(theta))
-        return r, r
-
-    @jax.custom_vjp
-    def cost(u):
-        return 0.5 * jnp.sum(residuals(u)[0] ** 2)
-
-    def cost_fwd(u):
-        jac, r = jax.jacfwd(residuals, has_aux=True)(u)
-        return 0.5 * jnp.sum(r**2), jac.T @ r
-
-    def cost_bwd(grad, g):
-        return (g * grad,)
-
-    cost.defvjp(cost_fwd, cost_bwd)
-    return cost
-
-
-def _optax_solver(objective, names, kind, learning_rate, rtol, atol, max_steps):
-    """Minimize ``cost`` with optax in a ``lax.while_loop``; converged when the step in ``u``
-    and the relative change in cost both fall below tolerance (checked over 2 steps in a row
-    for Adam, whose steps do not shrink by themselves until near the optimum)."""
-    cost_fn = _cost_with_forward_gradient(objective, names)
-    if kind == "adam":
-        opt = optax.adam(learning_rate)
-    else:
-        opt = optax.lbfgs()
-    if kind == "adam":  # Adam keeps no value or gradient in its state
-        plain = jax.value_and_grad(cost_fn)
-        value_and_grad = lambda u, state: plain(u)  # noqa: E731
-    else:  # L-BFGS reuses those of its line search
-        value_and_grad = optax.value_and_grad_from_state(cost_fn)
-
-    def solve(u0):
-        def body(carry):
-            u, state, cost, _, k, calm = carry
-            value, grad = value_and_grad(u, state=state)
-            if kind == "adam":
-                updates, state = opt.update(grad, state, u)
-            else:
-                updates, state = opt.update(
-                    grad, state, u, value=value, grad=grad, value_fn=cost_fn
-                )
-            new = optax.apply_updates(u, updates)
-            step_small = jnp.max(jnp.abs(new - u)) < atol + rtol * jnp.max(jnp.abs(u))
-            cost_small = jnp.abs(cost - value) <= atol + rtol * jnp.abs(value)
-            calm = jnp.where(step_small & cost_small, calm + 1, 0)
-            return new, state, value, grad, k + 1, calm
-
-        def cond(carry):
-            *_, k, calm = carry
-            return (k < max_steps) & (calm < 2)
-
-        state = opt.init(u0)
-        big = jnp.asarray(jnp.inf, u0.dtype)
-        init = (u0, state, big, jnp.zeros_like(u0), jnp.asarray(0), jnp.asarray(0))
-        u, _, _, _, k, calm = jax.lax.while_loop(cond, body, init)
-        return u, calm >= 2, k
-
-    return solve
 
 
 def fit(
@@ -327,14 +114,7 @@ def fit(
     malformed data file.
     """
     t_start = time.perf_counter()
-    if not jax.config.jax_enable_x64:
-        warnings.warn(
-            "fit: JAX runs in float32 here; the fit's tolerances and uncertainties need "
-            'float64: call jax.config.update("jax_enable_x64", True) before any JAX array '
-            "is made (the command line does)",
-            UserWarning,
-            stacklevel=2,
-        )
+    _warn_if_float32()
     names = check_names(params, scene)
     initial = _check_options(names, solver, jacobian, starts, max_steps, spread, initial)
     p0 = [float(initial.get(n, get_parameter(scene, n))) for n in names]
@@ -363,6 +143,18 @@ def fit(
     runs = _ranked_runs(names, start_values, out)
     timings = {"compile": t_compile, "solve": t_solve}
     return _fit_result(objective, program, names, runs, starts, solver, jacobian, timings, t_start)
+
+
+def _warn_if_float32() -> None:
+    """A warning (pointing at the caller of :func:`fit`) where JAX runs in float32."""
+    if not jax.config.jax_enable_x64:
+        warnings.warn(
+            "fit: JAX runs in float32 here; the fit's tolerances and uncertainties need "
+            'float64: call jax.config.update("jax_enable_x64", True) before any JAX array '
+            "is made (the command line does)",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _fit_result(objective, program, names, runs, starts, solver, jacobian, timings, t_start):
@@ -429,168 +221,6 @@ def _check_options(names, solver, jacobian, starts, max_steps, spread, initial) 
     return initial
 
 
-@dataclass
-class _Solved:
-    """Every start's end point ``u``, residuals, Jacobian, impact status and convergence."""
-
-    u: np.ndarray
-    r: np.ndarray
-    jac: np.ndarray
-    status: np.ndarray
-    converged: list
-    steps: list
-    message: list
-
-
-def _solve_lm(program, points, rtol, atol, max_steps, progress) -> _Solved:
-    """All starts by Levenberg-Marquardt as one batch, with a progress bar."""
-    bar = tqdm(
-        total=max_steps,
-        desc=f"fit (lm, {len(points)} start{'s' if len(points) > 1 else ''})",
-        unit="it",
-        disable=not progress,
-        file=sys.stderr,
-        leave=False,
-    )
-
-    def on_iteration(k, cost, active):
-        bar.update(1)
-        bar.set_postfix(cost=f"{np.min(cost):.4g}", running=int(np.sum(active)))
-
-    try:
-        out = levenberg_marquardt(
-            program,
-            points,
-            rtol=rtol,
-            atol=atol,
-            max_steps=max_steps,
-            on_iteration=on_iteration,
-        )
-    finally:
-        bar.close()
-    return _Solved(out.u, out.r, out.jac, out.status, out.converged, out.steps, out.message)
-
-
-def _solve_optax(
-    objective, program, names, points, solver, learning_rate, rtol, atol, max_steps, progress
-) -> tuple[_Solved, float]:
-    """Each start in turn by an optax solver (its loop compiled once); the compile time."""
-    solve = _optax_solver(objective, names, solver, learning_rate, rtol, atol, max_steps)
-    t1 = time.perf_counter()
-    if progress:
-        print(f"compiling the {solver} loop ...", end="", file=sys.stderr, flush=True)
-    with runtime_checks_as_nan():
-        lowered = jax.jit(solve).lower(jnp.asarray(points[0], _dtype()))
-        compiled = lowered.compile(compiler_options())
-    loop_compile = time.perf_counter() - t1
-    if progress:
-        print(f" {loop_compile:.1f} s", file=sys.stderr, flush=True)
-    finals, ok_all, steps_all = [], [], []
-    for k in tqdm(
-        range(len(points)),
-        desc=f"fit ({solver})",
-        unit="start",
-        disable=not progress,
-        file=sys.stderr,
-        leave=False,
-    ):
-        u, ok, steps = compiled(jnp.asarray(points[k], _dtype()))
-        finals.append(np.asarray(u))
-        ok_all.append(bool(ok))
-        steps_all.append(int(steps))
-    U = np.stack(finals)
-    r_all, jac_all, status_all = program(U)
-    messages = ["converged" if ok else f"iteration limit ({max_steps}) reached" for ok in ok_all]
-    return _Solved(U, r_all, jac_all, status_all, ok_all, steps_all, messages), loop_compile
-
-
-def _ranked_runs(names, start_values, out: _Solved) -> list:
-    """``(StartResult, residuals, Jacobian, status)`` of each start, the best first: lowest
-    cost among converged starts, else lowest cost overall."""
-    runs = []
-    for k in range(len(start_values)):
-        cost = 0.5 * float(np.sum(out.r[k] ** 2))
-        ok = bool(out.converged[k]) and math.isfinite(cost)
-        message = "non-finite cost" if out.converged[k] and not ok else out.message[k]
-        start = StartResult(
-            start_values[k], _physical(names, out.u[k]), cost, ok, int(out.steps[k]), message
-        )
-        runs.append((start, out.r[k], out.jac[k], out.status[k]))
-    runs.sort(key=lambda run: (not run[0].converged, run[0].cost))
-    return runs
-
-
-def _verdict(objective, names, theta, runs, status, d, starts) -> tuple:
-    """The fit's status name, its problems and warnings, and the values for its scene (a
-    value outside its documented range replaced by the nearest inside)."""
-    best = runs[0][0]
-    n_failed = int(np.sum(status >= jaximpact.Status.MAX_STEPS))
-    warnings, problems = list(d["warnings"]), []
-    if not best.converged:
-        problems.append(f"the optimizer did not converge: {best.message}")
-    if n_failed:
-        problems.append(f"{n_failed} impact(s) failed to simulate at the final values")
-    problems.extend(d["undetermined"])
-    problems.extend(d["misfit"])
-    n_captured = _capture_mismatch(objective, status)
-    if n_captured:
-        problems.insert(
-            len(problems) - len(d["undetermined"]) - len(d["misfit"]),
-            f"the fit ended where the model captures {n_captured} impact(s) that the data "
-            "show rebounding (stuck in the capture region: start with less adhesion or "
-            "damping, or use more starts)",
-        )
-    # A fitted value outside its documented range (a log-scale parameter has no upper end):
-    # not an answer; the result's scene holds the nearest value inside, for reports and plots.
-    outside = {nm: v for nm, v in best.values.items() if not RANGES[nm].contains(v)}
-    for nm, v in outside.items():
-        problems.append(
-            f"{nm} = {v:.4g} left its documented range {RANGES[nm].interval()} "
-            "(docs/input_ranges.md)"
-        )
-    scene_values = {
-        nm: float(np.clip(v, RANGES[nm].lo, RANGES[nm].hi)) if nm in outside else v
-        for nm, v in best.values.items()
-    }
-    warnings += _value_warnings(objective, names, theta, runs, starts, scene_values)
-    if not best.converged or n_failed or n_captured or outside:
-        status_name = "not converged"
-    elif d["undetermined"]:
-        status_name = "undetermined"
-    elif d["misfit"]:
-        status_name = "misfit"
-    else:
-        status_name = "converged"
-    return status_name, problems, warnings, scene_values
-
-
-def _value_warnings(objective, names, theta, runs, starts, scene_values) -> list[str]:
-    """Warnings on the fitted values: implausible impacts, a value at its bound, starts that
-    converged to different minima."""
-    warnings = []
-    implausible_at = _implausible_impacts(objective, objective.scene_at(scene_values))
-    if implausible_at:
-        warnings.append(
-            f"physically implausible at {implausible_at} of {objective._speed.size} impact(s): "
-            f"{IMPLAUSIBLE['large_overlap']} (elastic Hertz estimate at the fitted values)"
-        )
-    for i, nm in enumerate(names):
-        if nm in BOUNDS:
-            lo, hi = BOUNDS[nm]
-            if min(theta[i] - lo, hi - theta[i]) < 1e-3 * (hi - lo):
-                warnings.append(f"{nm} = {theta[i]:.4g} is at its bound ({lo}, {hi})")
-    n_conv = sum(run[0].converged for run in runs)
-    minima = distinct_minima([run[0] for run in runs], names)
-    if starts > 1 and len(minima) > 1:
-        warnings.append(
-            f"{n_conv} of {starts} starts converged to {len(minima)} distinct minima (costs "
-            f"{minima[0].cost:.6g} .. {minima[-1].cost:.6g}; each listed under 'minima'): "
-            "the values above are the lowest; a posterior's reference covers each one with "
-            "posterior mass"
-        )
-    return warnings
-
-
 def check_enough_observations(observations: Observations, names: Sequence[str]) -> None:
     """Refuse, before anything is compiled, data that cannot determine the parameters: fewer
     independent observations (distinct pairs of impact and observable: a repeated
@@ -617,51 +247,3 @@ def check_enough_observations(observations: Observations, names: Sequence[str]) 
 def _count(n: int, noun: str) -> str:
     """``1 observation``, ``2 observations``."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
-
-
-def _dtype():
-    return jnp.result_type(float)
-
-
-def _physical(names, u) -> dict[str, float]:
-    """``to_physical`` in numpy (no JAX dispatch for a handful of numbers)."""
-    out = {}
-    for name, x in zip(names, np.asarray(u, dtype=float), strict=True):
-        if name in BOUNDS:
-            lo, hi = BOUNDS[name]
-            out[name] = float(lo + (hi - lo) / (1.0 + math.exp(-x)))
-        else:
-            out[name] = float(math.exp(x))
-    return out
-
-
-def _implausible_impacts(objective: Objective, scene) -> int:
-    """How many of the data's impacts the fitted scene makes physically implausible
-    (``jaximpact._ranges.implausible``, from the elastic Hertz estimate of the overlap)."""
-    imp = objective.observations.impacts
-    n = imp.speed.size
-
-    def value(name, section, field):
-        given = imp.overrides.get(name)
-        return np.broadcast_to(
-            given if given is not None else np.asarray(getattr(getattr(scene, section), field)),
-            (n,),
-        )
-
-    flags = implausible(
-        value("radius", "particle", "radius"),
-        np.full(n, np.nan),
-        value("density", "particle", "density"),
-        value("K", "contact", "K"),
-        imp.speed,
-        imp.angle_deg,
-    )
-    return int(np.sum(flags != ""))
-
-
-def _capture_mismatch(objective: Objective, status) -> int:
-    """Impacts the model captures although the data show a rebound there."""
-    obs = objective.observations
-    rebound = (obs.observable != "captured") | (obs.value < 0.5)
-    captured = np.asarray(status)[obs.impact_index] == jaximpact.Status.CAPTURED
-    return int(np.unique(obs.impact_index[rebound & captured]).size)

@@ -83,75 +83,116 @@ def levenberg_marquardt(evaluate, U0, *, rtol, atol, max_steps, on_iteration=Non
     **Returns:** an `LMOutcome`.
     """
     U = np.array(U0, dtype=float)
-    S, p = U.shape
     r, jac, status = evaluate(U)
-    r, jac, status = r.copy(), jac.copy(), status.copy()
-    cost = 0.5 * np.sum(r**2, axis=1)
-    converged = np.zeros(S, bool)
-    active = np.isfinite(cost) & np.all(np.isfinite(jac), axis=(1, 2))
-    message = ["" if a else "non-finite residuals or Jacobian at the start" for a in active]
-    steps = np.zeros(S, int)
-    lam = np.full(S, 1e-3)
-    grow = np.full(S, 2.0)
-    d2 = np.sum(jac**2, axis=1)
-    tiny = np.finfo(float).tiny
-
-    def stop(s, ok, why):
-        active[s] = False
-        converged[s] = ok
-        message[s] = why
-
-    for s in range(S):
-        if active[s] and cost[s] == 0:
-            stop(s, True, "zero cost")
-        elif active[s] and not np.any(jac[s]):
-            stop(s, False, "the Jacobian is zero: the residuals do not depend on the parameters")
-
+    st = _Starts.first(U, r.copy(), jac.copy(), status.copy())
     iteration = 0
-    while np.any(active) and iteration < max_steps:
+    while np.any(st.active) and iteration < max_steps:
         iteration += 1
-        trial = U.copy()
-        steps_s = np.zeros_like(U)
-        predicted = np.zeros(S)
-        for s in np.flatnonzero(active):
-            d2[s] = np.maximum(d2[s], np.sum(jac[s] ** 2, axis=0))
-            steps_s[s], predicted[s] = _step(jac[s], r[s], lam[s], np.maximum(d2[s], tiny))
-            trial[s] = U[s] + steps_s[s]
+        trial, steps, predicted = _trials(st)
         r_t, jac_t, status_t = evaluate(trial)
-        for s in np.flatnonzero(active):
-            steps[s] += 1
-            cost_t = 0.5 * float(np.sum(r_t[s] ** 2))
-            small = bool(np.all(np.abs(steps_s[s]) <= atol + rtol * np.abs(U[s])))
-            finite = np.isfinite(cost_t) and np.all(np.isfinite(jac_t[s]))
-            rho = (cost[s] - cost_t) / predicted[s] if predicted[s] > 0 else -np.inf
-            if finite and rho > _ACCEPT:
-                reduction = (cost[s] - cost_t) / max(cost[s], tiny)
-                U[s], r[s], jac[s], status[s] = trial[s], r_t[s], jac_t[s], status_t[s]
-                predicted_rel = predicted[s] / max(cost[s], tiny)
-                cost[s] = cost_t
-                lam[s] *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                grow[s] = 2.0
-                if cost_t == 0:
-                    stop(s, True, "zero cost")
-                elif small:
-                    stop(s, True, "step below tolerance")
-                elif reduction <= rtol and predicted_rel <= rtol:
-                    stop(s, True, "cost change below tolerance")
-                elif not np.any(jac[s]):
-                    stop(
-                        s,
-                        False,
-                        "the Jacobian is zero: the residuals do not depend on the parameters",
-                    )
-            else:
-                lam[s] *= grow[s]
-                grow[s] *= 2.0
-                if small:
-                    stop(s, True, "no lower cost within the step tolerance")
-                elif lam[s] > _MAX_DAMPING:
-                    stop(s, False, "no step lowers the cost (damping overflow)")
+        for s in np.flatnonzero(st.active):
+            st.steps[s] += 1
+            _judge(st, s, trial[s], steps[s], predicted[s], r_t[s], jac_t[s], status_t[s],
+                   rtol, atol)  # fmt: skip
         if on_iteration is not None:
-            on_iteration(iteration, cost.copy(), active.copy())
-    for s in np.flatnonzero(active):
-        stop(s, False, f"iteration limit ({max_steps}) reached")
-    return LMOutcome(U, r, jac, status, cost, converged, steps, message, iteration)
+            on_iteration(iteration, st.cost.copy(), st.active.copy())
+    for s in np.flatnonzero(st.active):
+        st.stop(s, False, f"iteration limit ({max_steps}) reached")
+    return LMOutcome(
+        st.U, st.r, st.jac, st.status, st.cost, st.converged, st.steps, st.message, iteration
+    )
+
+
+_ZERO_JACOBIAN = "the Jacobian is zero: the residuals do not depend on the parameters"
+
+
+@dataclass
+class _Starts:
+    """Every start's state during the iteration (arrays over the starts, updated in place):
+    its point, residuals, Jacobian, impact status and cost, whether it is still running
+    (``active``), how it stopped (``converged``, ``message``), its evaluations, its damping
+    ``lam`` and that damping's growth factor, and the running maximum ``d2`` of
+    ``diag(J^T J)``."""
+
+    U: np.ndarray
+    r: np.ndarray
+    jac: np.ndarray
+    status: np.ndarray
+    cost: np.ndarray
+    converged: np.ndarray
+    active: np.ndarray
+    message: list
+    steps: np.ndarray
+    lam: np.ndarray
+    grow: np.ndarray
+    d2: np.ndarray
+
+    @classmethod
+    def first(cls, U, r, jac, status) -> _Starts:
+        """The state at the starting points; a start with a zero cost or a zero Jacobian
+        there stops at once."""
+        S = U.shape[0]
+        cost = 0.5 * np.sum(r**2, axis=1)
+        active = np.isfinite(cost) & np.all(np.isfinite(jac), axis=(1, 2))
+        message = ["" if a else "non-finite residuals or Jacobian at the start" for a in active]
+        st = cls(
+            U, r, jac, status, cost, np.zeros(S, bool), active, message, np.zeros(S, int),
+            np.full(S, 1e-3), np.full(S, 2.0), np.sum(jac**2, axis=1),
+        )  # fmt: skip
+        for s in range(S):
+            if st.active[s] and st.cost[s] == 0:
+                st.stop(s, True, "zero cost")
+            elif st.active[s] and not np.any(st.jac[s]):
+                st.stop(s, False, _ZERO_JACOBIAN)
+        return st
+
+    def stop(self, s, ok, why) -> None:
+        self.active[s] = False
+        self.converged[s] = ok
+        self.message[s] = why
+
+
+def _trials(st: _Starts):
+    """Each running start's trial point, its step and the cost reduction the linear model
+    predicts (the stopped starts: their own point, a zero step)."""
+    tiny = np.finfo(float).tiny
+    trial = st.U.copy()
+    steps = np.zeros_like(st.U)
+    predicted = np.zeros(st.U.shape[0])
+    for s in np.flatnonzero(st.active):
+        st.d2[s] = np.maximum(st.d2[s], np.sum(st.jac[s] ** 2, axis=0))
+        steps[s], predicted[s] = _step(st.jac[s], st.r[s], st.lam[s], np.maximum(st.d2[s], tiny))
+        trial[s] = st.U[s] + steps[s]
+    return trial, steps, predicted
+
+
+def _judge(st: _Starts, s, trial, step, predicted, r_t, jac_t, status_t, rtol, atol) -> None:
+    """Start ``s``'s trial accepted or rejected, its damping updated, and whether it stops
+    (module docstring)."""
+    tiny = np.finfo(float).tiny
+    cost_t = 0.5 * float(np.sum(r_t**2))
+    small = bool(np.all(np.abs(step) <= atol + rtol * np.abs(st.U[s])))
+    finite = np.isfinite(cost_t) and np.all(np.isfinite(jac_t))
+    rho = (st.cost[s] - cost_t) / predicted if predicted > 0 else -np.inf
+    if finite and rho > _ACCEPT:
+        reduction = (st.cost[s] - cost_t) / max(st.cost[s], tiny)
+        st.U[s], st.r[s], st.jac[s], st.status[s] = trial, r_t, jac_t, status_t
+        predicted_rel = predicted / max(st.cost[s], tiny)
+        st.cost[s] = cost_t
+        st.lam[s] *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+        st.grow[s] = 2.0
+        if cost_t == 0:
+            st.stop(s, True, "zero cost")
+        elif small:
+            st.stop(s, True, "step below tolerance")
+        elif reduction <= rtol and predicted_rel <= rtol:
+            st.stop(s, True, "cost change below tolerance")
+        elif not np.any(st.jac[s]):
+            st.stop(s, False, _ZERO_JACOBIAN)
+    else:
+        st.lam[s] *= st.grow[s]
+        st.grow[s] *= 2.0
+        if small:
+            st.stop(s, True, "no lower cost within the step tolerance")
+        elif st.lam[s] > _MAX_DAMPING:
+            st.stop(s, False, "no step lowers the cost (damping overflow)")

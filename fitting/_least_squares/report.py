@@ -219,32 +219,13 @@ def plot_fit(path, result: FitResult) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    import jaximpact
-
-    objective = result.objective
-    obs = objective.observations
+    obs = result.objective.observations
     imp = obs.impacts
     x_is_angle = np.unique(obs.speed).size == 1
     x = obs.angle_deg if x_is_angle else obs.speed
     names = [n for n in OBSERVABLES if np.any(obs.observable == n)]
     curves = _curves(obs, x_is_angle) if not imp.overrides else []
-    if imp.overrides:  # per-impact parameters: the model at the data only
-        model, _ = objective.model_values(result.theta)
-        grid_results = None
-    else:
-        parts = [(imp.speed, imp.angle_deg, imp.omega0)]
-        parts += [(c["speed"], c["angle"], c["omega0"]) for c in curves]
-        speed, angle, omega = (np.concatenate([q[k] for q in parts]) for k in range(3))
-        everything = jaximpact.simulate(
-            result.scene.replace(solver={"outputs": "rebound"}),
-            speed,
-            angle,
-            omega,
-            method=objective.method,
-            program="compact",
-        )
-        model = _observation_values(obs, everything)
-        grid_results = everything
+    model, grid_results = _plotted_model(result, curves)
 
     fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
     for ax, name in zip(axes[:, 0], names, strict=True):
@@ -280,6 +261,32 @@ def plot_fit(path, result: FitResult) -> None:
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
     plt.close(fig)
+
+
+def _plotted_model(result: FitResult, curves) -> tuple:
+    """``(model, grid_results)``: the fitted model's value of each observation, and its
+    `ImpactResult` at the observed impacts then along the ``curves`` (``None`` where the data
+    have per-impact parameters: the model at the data only)."""
+    import jaximpact
+
+    objective = result.objective
+    obs = objective.observations
+    imp = obs.impacts
+    if imp.overrides:  # per-impact parameters: the model at the data only
+        model, _ = objective.model_values(result.theta)
+        return model, None
+    parts = [(imp.speed, imp.angle_deg, imp.omega0)]
+    parts += [(c["speed"], c["angle"], c["omega0"]) for c in curves]
+    speed, angle, omega = (np.concatenate([q[k] for q in parts]) for k in range(3))
+    everything = jaximpact.simulate(
+        result.scene.replace(solver={"outputs": "rebound"}),
+        speed,
+        angle,
+        omega,
+        method=objective.method,
+        program="compact",
+    )
+    return _observation_values(obs, everything), everything
 
 
 #: What each observable is, for axis labels (the data file's column name follows).
