@@ -33,6 +33,7 @@ PUBLIC_MODULES = (
     "jaximpact.wall_law",
     "jaximpact.reference",
     "jaximpact.tables",
+    "jaximpact.parameters",
 )
 
 #: Section titles of a page, by the first part of the defining module below the package.

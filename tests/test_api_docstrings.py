@@ -66,3 +66,21 @@ def test_the_check_sees_through_a_dataclass_signature(hooks, monkeypatch):
 
     monkeypatch.setattr(sys.modules["jaximpact.sweep"], "SweepSummary", SweepSummary)
     assert hooks.missing_docstrings() == ["jaximpact.sweep.SweepSummary"]
+
+
+def test_every_public_module_has_a_page(hooks):
+    """A new public module of jaximpact or fitting (a name without ``_``; ``cli`` aside, the
+    commands are documented in docs/cli.md) gets an API page: add it to ``PUBLIC_MODULES`` in
+    docs/hooks.py and a page under docs/api/ with its marker."""
+    import pkgutil
+
+    import fitting
+    import jaximpact
+
+    public = {
+        f"{package.__name__}.{info.name}"
+        for package in (jaximpact, fitting)
+        for info in pkgutil.iter_modules(package.__path__)
+        if not info.name.startswith("_") and info.name != "cli"
+    }
+    assert public <= set(hooks.PUBLIC_MODULES), sorted(public - set(hooks.PUBLIC_MODULES))
