@@ -6,11 +6,11 @@ from ._engine.devices import use_all_cpu_cores as use_all_cpu_cores
 from ._engine.results import ImpactResult as ImpactResult
 from ._engine.results import Status as Status
 from ._engine.sensitivity import output_jacobian as output_jacobian
-from ._engine.simulate import Integration as Integration
-from ._engine.simulate import integration_settings as integration_settings
-from ._engine.simulate import required_terms as required_terms
-from ._engine.simulate import scene_parameters as scene_parameters
-from ._engine.simulate import stiffness_estimate as stiffness_estimate
+from ._engine.settings import Integration as Integration
+from ._engine.settings import integration_settings as integration_settings
+from ._engine.settings import required_terms as required_terms
+from ._engine.settings import scene_parameters as scene_parameters
+from ._engine.settings import stiffness_estimate as stiffness_estimate
 from ._io.cache import enable_compilation_cache as enable_compilation_cache
 from ._io.scene_files import default_scene_path as default_scene_path
 from ._io.scene_files import embedded_scenes as embedded_scenes

@@ -11,7 +11,7 @@ import tomllib
 import jax.numpy as jnp
 import numpy as np
 
-from .._engine.simulate import (
+from .._engine.settings import (
     integration_settings,
     required_terms,
     scene_parameters,
