@@ -4,7 +4,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._io.tables import RESULT_COLUMNS, TEXT_RESULT_COLUMNS
+from .._io.columns import RESULT_COLUMNS, TEXT_RESULT_COLUMNS
 
 
 class Status:

@@ -187,7 +187,7 @@ def cached_program(name: str, fn, args, key: str):
     except Exception:  # not exportable (e.g. a host callback) or no flatbuffers: plain jit
         return jax.jit(fn), "traced"
     try:
-        from .tables import atomic_write_bytes
+        from .atomic import atomic_write_bytes
 
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(path, bytes(data))

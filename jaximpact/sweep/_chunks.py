@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 
-from .._io.tables import IMPACT_COLUMNS, RESULT_COLUMNS
+from .._io.columns import IMPACT_COLUMNS, RESULT_COLUMNS
 from ._store import FORMAT
 
 _RUNNERS: dict = {}
@@ -132,7 +132,7 @@ def _model_config(scene, source, chunk_size: int, dtype):
     import jax
     import jax.numpy as jnp
 
-    from .._engine.simulate import (
+    from .._engine.settings import (
         integration_settings,
         required_terms,
         scene_parameters,

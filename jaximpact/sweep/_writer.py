@@ -8,7 +8,7 @@ from collections import deque
 
 import numpy as np
 
-from .._io.tables import TEXT_RESULT_COLUMNS
+from .._io.columns import TEXT_RESULT_COLUMNS
 from ._chunks import _status_texts
 from ._store import _schema
 
