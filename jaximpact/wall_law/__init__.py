@@ -19,8 +19,8 @@ from ._io import read_draws as read_draws
 from ._io import to_xarray as to_xarray
 from ._io import write_netcdf as write_netcdf
 from ._io import write_parquet as write_parquet
-from ._table import WallLaw as WallLaw
-from ._table import WallLawError as WallLawError
+from ._law import WallLaw as WallLaw
+from ._law import WallLawError as WallLawError
 from ._table import wall_law as wall_law
 
 

@@ -1,12 +1,12 @@
 """The kink-aligned layout of the wall law (``wall_law(..., layout="aligned")``).
 
-Rolling puts two kinks into the tangential results (:data:`~._table.KINKS`): below an angle
+Rolling puts two kinks into the tangential results (:data:`~._law.KINKS`): below an angle
 ``theta*`` the sphere reaches rolling before it leaves the wall, above it it slides through;
 and in fast impacts, below a smaller angle it still rolls when it leaves, above it the
 rolling gives way to sliding again before it leaves. On a tensor product of angles the kinks
 move across the angle nodes as the speed ratio and the radius change, and linear
 interpolation needs hundreds of angles to resolve them (574 at one radius). Here the results
-are tabulated against the aligned coordinate ``u`` of :func:`~._table.kink_coordinate`
+are tabulated against the aligned coordinate ``u`` of :func:`~._law.kink_coordinate`
 (piecewise linear in the angle between ``0``, the kinks and the top angle), in which the
 kinks are the nodes ``u = 1`` and ``u = 2`` at every (radius, spin, speed ratio); the kink
 angles are a table of their own over (radius, spin, speed ratio). Measured at one radius
@@ -37,21 +37,20 @@ from __future__ import annotations
 import numpy as np
 
 from ._capture import CaptureStatus
-from ._table import (
+from ._law import (
     KINKS,
     NOT_SIMULATED,
     OUTPUTS,
-    RADIUS_LEVELS,
-    RADIUS_MIN_STEP,
     WallLaw,
     _cell,
     _multilinear,
-    _top,
     capture_coordinate,
     capture_from_coordinate,
     kink_angle,
     scene_attributes,
 )
+from ._refine import RADIUS_LEVELS, RADIUS_MIN_STEP
+from ._rows import _top
 
 #: Nodes of the aligned coordinate, intervals per segment: below the first kink, between the
 #: kinks, and above the second. The first two are denser toward their start, as
@@ -171,7 +170,7 @@ def _full_nodes(ctx, radii, angle, omega, x, u_nodes, top, stage) -> dict:
 
 
 def _kink_angles(ctx, cap, radii, omega, x, top, stage):
-    """The kink angles ``(K, n, W, X)`` (deg, :data:`~._table.KINKS`' order) and the number of
+    """The kink angles ``(K, n, W, X)`` (deg, :data:`~._law.KINKS`' order) and the number of
     (radius, spin, speed) rows whose regime goes back along the scan (its first change to
     each regime is taken)."""
     n, W = radii.size, omega.size

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._engine.simulate import scene_parameters
+from .._engine.settings import scene_parameters
 from ._capture import scene_with
-from ._table import SPEED_MAX, WallLaw, _cell
+from ._law import WallLaw, _cell
+from ._rows import SPEED_MAX
 
 __all__ = ["random_points", "compare_with_simulate"]
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._table import KINK_MIN_DEG, KINKS, WallLaw
+from ._law import KINK_MIN_DEG, KINKS, WallLaw
 
 __all__ = ["c_header", "write_code"]
 
@@ -123,7 +123,7 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 /* 1: the results are on the kink-aligned angle coordinate (JAXIMPACT_WL_NU nodes) */
 #define JAXIMPACT_WL_ALIGNED {1 if law.aligned else 0}
 #define JAXIMPACT_WL_NU {U}
-/* number of kinks of the aligned coordinate (jaximpact.wall_law._table.KINKS) */
+/* number of kinks of the aligned coordinate (jaximpact.wall_law._law.KINKS) */
 #define JAXIMPACT_WL_NK {len(KINKS)}
 #define JAXIMPACT_WL_KINK_MIN_DEG {KINK_MIN_DEG!r}
 /* radius intervals not resolved to the build's tolerances (flagged as clamped) */

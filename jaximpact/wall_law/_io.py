@@ -8,7 +8,8 @@ import numpy as np
 
 from .._model.scene import SceneError
 from ._capture import CaptureStatus
-from ._table import FILL_SHARE, KINK_MIN_DEG, KINKS, WallLaw
+from ._law import KINK_MIN_DEG, KINKS, WallLaw
+from ._refine import FILL_SHARE
 
 __all__ = ["read_draws", "to_xarray", "write_netcdf", "write_parquet", "NETCDF", "PARQUET"]
 
@@ -268,7 +269,7 @@ def read_draws(path) -> dict:
     """Posterior draws of scene parameters from an ArviZ NetCDF file (``jaximpact fit
     --posterior --draws FILE.nc``): ``{name: 1-D array}``, chains pooled; other variables
     (noise factors) are left out."""
-    from .._engine.simulate import PARAMETERS
+    from .._engine.settings import PARAMETERS
     from .._io.paths import check_readable
 
     check_readable(path, "draws file")
