@@ -532,11 +532,11 @@ WIDE_TOL = 1e-2
 
 @pytest.fixture(scope="module")
 def wide_law(scene):
-    from jaximpact.wall_law import _table
+    from jaximpact.wall_law import _rows  # (the batch's lane count is set there)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(_table, "RADII_PER_BATCH", 1)
-        mp.setattr(_table, "MIN_BATCH_LANES", 1)
+        mp.setattr(_rows, "RADII_PER_BATCH", 1)
+        mp.setattr(_rows, "MIN_BATCH_LANES", 1)
         return wall_law(
             scene, radius=WIDE, angle_deg=ANGLES, omega0=SPINS, speed_ratio=RATIOS,
             capture_tol=WIDE_TOL, refine_tol=1.0, layout="grid",
@@ -658,21 +658,21 @@ def test_new_nodes_are_filled_only_where_the_rows_interpolate_within_the_toleran
     its own speeds: within the refinement tolerance (the capture speed within its
     tolerance), and the capture speeds searched near the interpolated ones equal
     `capture_speed`'s full search."""
-    from jaximpact.wall_law import _table
+    from jaximpact.wall_law import _rows
 
     tol = 1e-3
     first_angles = np.linspace(0.0, 80.0, 17)
     simulated = []
-    original = _table._Context.lanes
+    original = _rows._Context.lanes
 
     def recording(self, r, a, w, *args, **kwargs):
         simulated.extend(zip(np.round(r, 15).tolist(), np.round(a, 12).tolist(), strict=True))
         return original(self, r, a, w, *args, **kwargs)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(_table, "RADII_PER_BATCH", 1)
-        mp.setattr(_table, "MIN_BATCH_LANES", 1)
-        mp.setattr(_table._Context, "lanes", recording)
+        mp.setattr(_rows, "RADII_PER_BATCH", 1)
+        mp.setattr(_rows, "MIN_BATCH_LANES", 1)
+        mp.setattr(_rows._Context, "lanes", recording)
         law = wall_law(
             scene, radius=(15e-6, 45e-6), angle_deg=first_angles, layout="grid",
             omega0=(0.0,), speed_ratio=RATIOS, capture_tol=5e-3, refine_tol=tol,
@@ -729,10 +729,10 @@ def test_two_decade_radius_table_against_simulate(scene):
     beyond 0.5 % of the capture speed, cor_n 1e-3; cor_t and the spin are held to 2e-3
     (measured 1.4e-3 and 1.6e-3 near the stick radius: the results' radius test at 2e-4
     leaves them above 1e-3)."""
-    from jaximpact.wall_law import _table
+    from jaximpact.wall_law import _rows
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(_table, "MIN_BATCH_LANES", 256)
+        mp.setattr(_rows, "MIN_BATCH_LANES", 256)
         law = wall_law(scene, radius=(1e-6, 100e-6), angle_deg=(0.0, 60.0), layout="grid")
     assert law.stick[0].all() and not law.stick[-1].any()
     bands = law.radius_report["unresolved"]
