@@ -58,10 +58,22 @@ def _version() -> str:
 
 def c_header(law: WallLaw, scene_name: str = "") -> str:
     """The text of ``jaximpact_wall_law.h`` for ``law``."""
+    parts = [
+        _header_comment(law, scene_name),
+        _header_macros(law),
+        *_header_tables(law),
+        "\n" + _template("wall_law_functions.h.in"),
+        "\n#endif /* JAXIMPACT_WALL_LAW_H */\n",
+    ]
+    return "".join(parts)
+
+
+def _header_comment(law: WallLaw, scene_name: str) -> str:
+    """The header's opening comment: what the table is, its axes and interpolation, the
+    scene."""
     R, U, W, X = law.shape
     A = law.angle_deg.size
     capture = law.speed_axis == "capture_ratio"
-    reference = law.reference_table
     g_note = (
         "\n   Capture speed: g = (v_c cos(angle))^(-1/4) is interpolated, v_c = g^-4 / cos(angle);"
         "\n   g = 0 on radii where the sphere sticks at every speed (captured whatever the speed)."
@@ -74,7 +86,6 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
         if capture
         else "speed in m/s (the scene has no adhesion: nothing sticks)"
     )
-    axis2 = "aligned angle coordinate" if law.aligned else "angle"
     aligned_note = (
         f"; the results on {U} nodes of the kink-aligned angle coordinate\n   (piecewise "
         "linear in the angle between 0, the kink angles (radius, spin, speed) and the\n   "
@@ -83,8 +94,7 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
         if law.aligned
         else ""
     )
-    parts = [
-        f"""/* {HEADER_NAME}: a wall law tabulated by jaximpact {_version()} (Brach-Dunn-Cheng
+    return f"""/* {HEADER_NAME}: a wall law tabulated by jaximpact {_version()} (Brach-Dunn-Cheng
    impact model) from the scene {scene_name or "(given in Python)"}. Generated: do not edit.
 
    Dependency-free C99 (only <math.h>; link with -lm). One function, jaximpact_wall_law(),
@@ -106,7 +116,15 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 {scene_lines}
 */
 
-#ifndef JAXIMPACT_WALL_LAW_H
+"""
+
+
+def _header_macros(law: WallLaw) -> str:
+    """The include guard, the result codes and the table's sizes and switches as macros."""
+    R, U, W, X = law.shape
+    A = law.angle_deg.size
+    capture = law.speed_axis == "capture_ratio"
+    return f"""#ifndef JAXIMPACT_WALL_LAW_H
 #define JAXIMPACT_WALL_LAW_H
 
 #include <math.h>
@@ -133,7 +151,16 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
 /* the sphere's density the table was made for, kg/m^3 */
 #define JAXIMPACT_WL_DENSITY {float(law.scene["particle.density"])!r}
 
-""",
+"""
+
+
+def _header_tables(law: WallLaw) -> list:
+    """The table's axes, reference speeds, kink angles, row tops and results as C arrays,
+    each under a comment that names it."""
+    capture = law.speed_axis == "capture_ratio"
+    reference = law.reference_table
+    axis2 = "aligned angle coordinate" if law.aligned else "angle"
+    return [
         "/* log(radius / m) */\n" + _array("jaximpact_wl_log_radius", np.log(law.radius)),
         "/* incidence angle from the normal, deg */\n"
         + _array("jaximpact_wl_angle_deg", law.angle_deg),
@@ -168,10 +195,7 @@ def c_header(law: WallLaw, scene_name: str = "") -> str:
         + _array("jaximpact_wl_cor_n", law.cor_n),
         "/* vt_out / speed */\n" + _array("jaximpact_wl_vt_ratio", law.vt_ratio),
         "/* omega_out radius / speed */\n" + _array("jaximpact_wl_spin_ratio", law.spin_ratio),
-        "\n" + _template("wall_law_functions.h.in"),
-        "\n#endif /* JAXIMPACT_WALL_LAW_H */\n",
     ]
-    return "".join(parts)
 
 
 def write_code(law: WallLaw, directory, scene_name: str = "", write=None) -> list[Path]:

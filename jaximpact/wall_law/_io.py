@@ -85,9 +85,16 @@ def _xarray():
 
 def to_xarray(law: WallLaw, scene_name: str = ""):
     """The wall law as an ``xarray.Dataset`` (coordinates, units, the scene as attributes)."""
-    from .. import __version__
-
     xr = _xarray()
+    coords, data = _coords_and_variables(law)
+    attrs = {**_attributes(law, scene_name), **_report_attributes(law.radius_report)}
+    attrs.update({f"scene.{k}": v for k, v in law.scene.items()})
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _coords_and_variables(law: WallLaw) -> tuple[dict, dict]:
+    """The dataset's coordinates and variables (``(dims, values, attrs)`` each), with units,
+    descriptions and the status codes' flags."""
     dims3 = ("radius", "angle_deg", "omega0")
     # the aligned layout's rows and cells are on the aligned angle coordinate
     rows3 = ("radius", "kink_u", "omega0") if law.aligned else dims3
@@ -126,7 +133,14 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
     for name, (unit, about) in UNCERTAINTY.items():
         if name in law.uncertainty:
             data[name] = (dims4, law.uncertainty[name], {"units": unit, "long_name": about})
-    attrs = {
+    return coords, data
+
+
+def _attributes(law: WallLaw, scene_name: str) -> dict:
+    """The dataset's description: its origin, speed axis, interpolation, layout and build."""
+    from .. import __version__
+
+    return {
         "title": "jaximpact wall law",
         "jaximpact_version": __version__,
         "scene_name": scene_name or "(given in Python)",
@@ -151,7 +165,12 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
         "posterior_draws": int(law.uncertainty.get("draws", 0)),
         "posterior_parameters": " ".join(law.uncertainty.get("parameters", [])),
     }
-    report = law.radius_report
+
+
+def _report_attributes(report: dict) -> dict:
+    """The build report (``WallLaw.radius_report``) as attributes: the tolerances, the radius
+    checks and what was left unresolved, the refined cells."""
+    attrs = {}
     attrs["refine_tol"] = (
         "none (no refinement)"
         if report.get("refine_tol") is None
@@ -186,8 +205,7 @@ def to_xarray(law: WallLaw, scene_name: str = ""):
             report["results_unresolved"], "missed by"
         )
     attrs["capture_speeds_not_converged"] = int(report.get("not_converged", 0))
-    attrs.update({f"scene.{k}": v for k, v in law.scene.items()})
-    return xr.Dataset(data, coords=coords, attrs=attrs)
+    return attrs
 
 
 def _intervals(bands, what: str) -> str:

@@ -151,11 +151,6 @@ def cmd_wall_law(args) -> int:
 
 def _report(law, scene, scene_name, check) -> None:
     """What the table holds (and, with ``--check N``, its errors against simulate)."""
-    import numpy as np
-
-    from ._check import compare_with_simulate, random_points
-    from ._table import SPEED_MAX
-
     R, U, W, X = law.shape
     A = law.angle_deg.size
     print(f"scene: {scene_name}")
@@ -164,102 +159,127 @@ def _report(law, scene, scene_name, check) -> None:
         nodes += f" (results on {U} nodes of the kink-aligned angle coordinate)"
     print(f"wall law: {nodes}, {law.impacts} impacts simulated in {law.seconds:.1f} s")
     if law.speed_axis == "capture_ratio":
-        vc = law.capture_speed[np.isfinite(law.capture_speed)]
-        if vc.size:
-            print(f"capture speed: {vc.min():.6g} to {vc.max():.6g} m/s")
-        stick = law.stick.all(axis=(1, 2))
-        if stick.any():
-            print(
-                f"sticks at every speed (stick rows): {int(law.stick.sum())} of "
-                f"{law.stick.size} (radius, angle, spin) rows, radii up to "
-                f"{law.radius[np.flatnonzero(law.stick.any(axis=(1, 2)))[-1]]:.6g} m"
-            )
-        report = law.radius_report
-        if "checked_midpoints" in report:
-            print(
-                f"radius nodes: {R}, {report['checked_midpoints']} midpoints checked "
-                f"(capture speed within {report['capture_tol']:g})"
-            )
-            bands = report["unresolved"]
-            if bands:
-                widest = max(hi / lo - 1 for lo, hi, _ in bands)
-                print(
-                    f"  {len(bands)} radius intervals not resolved to that (the jump to the "
-                    f"stick rows, or a capture speed not found), the widest {widest:.2%} of "
-                    "the radius"
-                )
-        if "results_tol" in report:
-            print(
-                f"aligned results: {report['checked_radii']} radius midpoints checked against "
-                f"simulate (within {report['results_tol']:g} on the aligned nodes, or split)"
-            )
-            left = report.get("results_unresolved", [])
-            if left:
-                lo, hi = min(b[0] for b in left), max(b[1] for b in left)
-                print(
-                    f"  {len(left)} radius intervals not resolved to that (at the smallest "
-                    f"radius step), between {lo:.6g} and {hi:.6g} m"
-                )
-        for stage, (sim, total) in report.get("new_cells", {}).items():
-            if total > sim:
-                print(
-                    f"{stage}: {total - sim} of {total} new cells interpolated "
-                    "(their rows within the refinement tolerance), not simulated"
-                )
-        if report.get("not_converged"):
-            print(
-                f"warning: {report['not_converged']} capture speeds of table rows are the "
-                "root find's best estimate (not converged)",
-                file=sys.stderr,
-            )
-        above = int(np.sum(law.top_ratio < law.speed_ratio[-1]))
-        if above:
-            again = int(np.sum(law.captured_above_top == 1))
-            print(
-                f"{above} rows end below the largest speed ratio: {again} stick again above "
-                f"their top (captured there), {above - again} reach the speed range's "
-                f"{SPEED_MAX:g} m/s (their last results, flagged as clamped)"
-            )
-        multiple = int(np.sum(law.capture_status == 2))
-        if multiple:
-            print(
-                f"warning: at {multiple} (radius, angle, spin) capture is not one threshold; "
-                "the table sticks below the capture speed, and above a row's top where it "
-                "sticks again (capture_status 'multiple')",
-                file=sys.stderr,
-            )
+        _report_capture(law)
     else:
         print("the scene has no adhesion: nothing sticks; the speed axis is in m/s")
     if law.uncertainty:
         print(f"uncertainty: {law.uncertainty['draws']} posterior draws")
     if check:
-        pts = random_points(law, check, seed=0)
-        c = compare_with_simulate(law, scene, pts)
-        # outside the table (above a row's top, beyond an axis) the table says so: its
-        # answers there are the documented fallback, counted apart
-        flagged = (c["code"] & 2) == 2
-        near = np.abs(c["speed_ratio"] - 1.0) <= 5e-3
-        # the radius intervals the build reports as unresolved: counted apart
-        r, bands = pts["radius"][:, None], law.unresolved_radii
-        apart = ((r >= bands[:, 0]) & (r <= bands[:, 1])).any(axis=1)
-        near |= apart
-        disagree = ~c["status_agree"] & ~near
-        # within 0.5 % of the capture speed the results change steeply with the speed ratio
-        # (cor_n like sqrt(x - 1)), so the capture speed's own tolerance dominates there
-        parts = []
-        for name, label in (("cor_n", "cor_n"), ("cor_t", "cor_t"), ("spin_ratio", "spin")):
-            e = c["error"][name][~flagged & ~near]
-            e = e[np.isfinite(e)]
-            if e.size:
-                parts.append(f"{label} {e.max():.2e} ({np.percentile(e, 99):.2e})")
+        _report_check(law, scene, check)
+
+
+def _report_capture(law) -> None:
+    """The capture speeds, the stick rows, the build's radius nodes and refinement, and the
+    rows that end below the largest speed ratio (an adhesive scene's table)."""
+    import numpy as np
+
+    from ._rows import SPEED_MAX
+
+    vc = law.capture_speed[np.isfinite(law.capture_speed)]
+    if vc.size:
+        print(f"capture speed: {vc.min():.6g} to {vc.max():.6g} m/s")
+    stick = law.stick.all(axis=(1, 2))
+    if stick.any():
         print(
-            f"check against simulate at {check} random points: {int(flagged.sum())} flagged "
-            f"as clamped, {int(apart.sum())} in the unresolved radius intervals (counted "
-            f"apart); stick/rebound disagreements beyond 0.5 % of the capture speed: "
-            f"{int((disagree & ~flagged).sum())} (and {int((disagree & flagged).sum())} "
-            f"flagged); errors of the other rebounds beyond 0.5 % of the capture speed, "
-            f"largest (99th percentile): " + ", ".join(parts)
+            f"sticks at every speed (stick rows): {int(law.stick.sum())} of "
+            f"{law.stick.size} (radius, angle, spin) rows, radii up to "
+            f"{law.radius[np.flatnonzero(law.stick.any(axis=(1, 2)))[-1]]:.6g} m"
         )
+    _report_build(law.radius_report, law.shape[0])
+    above = int(np.sum(law.top_ratio < law.speed_ratio[-1]))
+    if above:
+        again = int(np.sum(law.captured_above_top == 1))
+        print(
+            f"{above} rows end below the largest speed ratio: {again} stick again above "
+            f"their top (captured there), {above - again} reach the speed range's "
+            f"{SPEED_MAX:g} m/s (their last results, flagged as clamped)"
+        )
+    multiple = int(np.sum(law.capture_status == 2))
+    if multiple:
+        print(
+            f"warning: at {multiple} (radius, angle, spin) capture is not one threshold; "
+            "the table sticks below the capture speed, and above a row's top where it "
+            "sticks again (capture_status 'multiple')",
+            file=sys.stderr,
+        )
+
+
+def _report_build(report: dict, R: int) -> None:
+    """The build report (``WallLaw.radius_report``): radius nodes and the intervals left
+    unresolved, the aligned layout's results check, the refined cells, unconverged capture
+    speeds."""
+    if "checked_midpoints" in report:
+        print(
+            f"radius nodes: {R}, {report['checked_midpoints']} midpoints checked "
+            f"(capture speed within {report['capture_tol']:g})"
+        )
+        bands = report["unresolved"]
+        if bands:
+            widest = max(hi / lo - 1 for lo, hi, _ in bands)
+            print(
+                f"  {len(bands)} radius intervals not resolved to that (the jump to the "
+                f"stick rows, or a capture speed not found), the widest {widest:.2%} of "
+                "the radius"
+            )
+    if "results_tol" in report:
+        print(
+            f"aligned results: {report['checked_radii']} radius midpoints checked against "
+            f"simulate (within {report['results_tol']:g} on the aligned nodes, or split)"
+        )
+        left = report.get("results_unresolved", [])
+        if left:
+            lo, hi = min(b[0] for b in left), max(b[1] for b in left)
+            print(
+                f"  {len(left)} radius intervals not resolved to that (at the smallest "
+                f"radius step), between {lo:.6g} and {hi:.6g} m"
+            )
+    for stage, (sim, total) in report.get("new_cells", {}).items():
+        if total > sim:
+            print(
+                f"{stage}: {total - sim} of {total} new cells interpolated "
+                "(their rows within the refinement tolerance), not simulated"
+            )
+    if report.get("not_converged"):
+        print(
+            f"warning: {report['not_converged']} capture speeds of table rows are the "
+            "root find's best estimate (not converged)",
+            file=sys.stderr,
+        )
+
+
+def _report_check(law, scene, check: int) -> None:
+    """The table's errors against simulate at ``check`` random points (``--check N``)."""
+    import numpy as np
+
+    from ._check import compare_with_simulate, random_points
+
+    pts = random_points(law, check, seed=0)
+    c = compare_with_simulate(law, scene, pts)
+    # outside the table (above a row's top, beyond an axis) the table says so: its
+    # answers there are the documented fallback, counted apart
+    flagged = (c["code"] & 2) == 2
+    near = np.abs(c["speed_ratio"] - 1.0) <= 5e-3
+    # the radius intervals the build reports as unresolved: counted apart
+    r, bands = pts["radius"][:, None], law.unresolved_radii
+    apart = ((r >= bands[:, 0]) & (r <= bands[:, 1])).any(axis=1)
+    near |= apart
+    disagree = ~c["status_agree"] & ~near
+    # within 0.5 % of the capture speed the results change steeply with the speed ratio
+    # (cor_n like sqrt(x - 1)), so the capture speed's own tolerance dominates there
+    parts = []
+    for name, label in (("cor_n", "cor_n"), ("cor_t", "cor_t"), ("spin_ratio", "spin")):
+        e = c["error"][name][~flagged & ~near]
+        e = e[np.isfinite(e)]
+        if e.size:
+            parts.append(f"{label} {e.max():.2e} ({np.percentile(e, 99):.2e})")
+    print(
+        f"check against simulate at {check} random points: {int(flagged.sum())} flagged "
+        f"as clamped, {int(apart.sum())} in the unresolved radius intervals (counted "
+        f"apart); stick/rebound disagreements beyond 0.5 % of the capture speed: "
+        f"{int((disagree & ~flagged).sum())} (and {int((disagree & flagged).sum())} "
+        f"flagged); errors of the other rebounds beyond 0.5 % of the capture speed, "
+        f"largest (99th percentile): " + ", ".join(parts)
+    )
 
 
 def add_wall_law_command(sub) -> None:
