@@ -76,7 +76,14 @@ def simulate_impact(
         run.status, run.roll_time = "captured", roll_time  # below JKR's sticking speed
     else:
         y, t = run.integrate(y, t, t_max, mode, roll_time, max_segments)
+    return _rigid_result(p, model, run, y, t, energy_in, S, T, v_n, history, n_samples)
 
+
+def _rigid_result(p: Params, model, run, y, t, energy_in, S, T, v_n, history, n_samples):
+    """The :class:`ImpactResult` of a finished run (state ``y`` at time ``t``): the last
+    stretch to the separation level crossed at constant speed, the JKR snap-off's loss, and
+    the history where asked for."""
+    n_c = p.separation_overlap
     contact_time = t
     if run.status == "rebound" and y[1] < 0:
         contact_time += (y[0] - n_c) / -y[1]  # the last n_eps, crossed at constant speed

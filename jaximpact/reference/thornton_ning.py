@@ -156,6 +156,15 @@ def simulate_normal_impact(speed, R, E, w, m, p_y, C_H=0.0, rtol=1e-12) -> TNImp
         hertz_part = P + adhesion * a**1.5
         return -(P + C_H * hertz_part * v) / m, C_H * hertz_part * v * v
 
+    t, y = _loaded(speed, R, E, w, p_y, a_y, delta_y, T, damped, options)
+    return _unloaded(t, y, R, E, w, p_y, a_y, T, damped, options)
+
+
+def _loaded(speed, R, E, w, p_y, a_y, delta_y, T, damped, options):
+    """The loading phases of :func:`simulate_normal_impact` from first touch: elastic to the
+    yield overlap (if reached), then plastic to the turning point. Returns the time and state
+    ``(overlap, its rate, damping work)`` there."""
+
     def loading(plastic):
         def rhs(t, y):
             a = _radius(y[0], R, E, w)
@@ -193,6 +202,13 @@ def simulate_normal_impact(speed, R, E, w, m, p_y, C_H=0.0, rtol=1e-12) -> TNImp
         if sol.status != 1:
             raise RuntimeError(f"the plastic loading did not end: {sol.message}")
         t, y = float(sol.t[-1]), sol.y[:, -1].copy()
+    return t, y
+
+
+def _unloaded(t, y, R, E, w, p_y, a_y, T, damped, options) -> TNImpact:
+    """The elastic unloading of :func:`simulate_normal_impact` from the turning point ``(t,
+    y)``, on the curve of the largest overlap, to its snap-off (rebound) or to a turn back
+    toward the wall (captured)."""
     delta_m = float(y[0])
     R_p, shift = unloading_curve(delta_m, R, E, w, a_y, p_y)
     delta_c = shift + (jkr.snap_off(R_p, E, w)[1] if w > 0 else 0.0)
