@@ -255,20 +255,10 @@ def solve_pool(term, solver, t0, t1, dt0, y0s, args_s, *, lanes, tail_lanes, **o
     """
     size = jax.tree_util.tree_leaves(y0s)[0].shape[0]
     init, running, step, finish = lane_functions(term, solver, t0, t1, dt0, y0s, **options)
-    take = lambda tree, i: jax.tree_util.tree_map(lambda x: x[i], tree)  # noqa: E731
-
-    def where(mask, a, b):
-        return jax.tree_util.tree_map(
-            lambda u, v: jnp.where(mask.reshape(mask.shape + (1,) * (u.ndim - 1)), u, v), a, b
-        )
-
-    def store(records, states, index, mask):  # rows `index` of records <- states where mask
-        rows = jnp.where(mask, index, size)  # out of range: dropped
-        return jax.tree_util.tree_map(lambda r, x: r.at[rows].set(x, mode="drop"), records, states)
 
     index = jnp.arange(lanes)
-    args = take(args_s, index)
-    states = jax.vmap(init)(take(y0s, index), args)
+    args = _take(args_s, index)
+    states = jax.vmap(init)(_take(y0s, index), args)
     records = jax.tree_util.tree_map(lambda x: jnp.zeros((size,) + x.shape[1:], x.dtype), states)
     # every impact starts through the refill below (one compiled form of its first stage)
     carry = (states, args, index, jnp.zeros(lanes, bool), jnp.asarray(0), records)
@@ -291,7 +281,7 @@ def solve_pool(term, solver, t0, t1, dt0, y0s, args_s, *, lanes, tail_lanes, **o
 
     def step_lanes(states, args, active):
         go = active & jax.vmap(running)(states)
-        return where(go, jax.vmap(step)(states, args), states)
+        return _where(go, jax.vmap(step)(states, args), states)
 
     def body(carry):
         states, args, index, active, next_impact, records = carry
@@ -306,14 +296,10 @@ def solve_pool(term, solver, t0, t1, dt0, y0s, args_s, *, lanes, tail_lanes, **o
         states = jax.lax.while_loop(stepping, lambda x: step_lanes(x, args, active), states)
         finished = finished_of(states, active)
         free = finished | ~active
-        records = store(records, states, index, finished)
-        new = next_impact + jnp.cumsum(free) - 1
-        fill = free & (new < size)
-        rows = jnp.minimum(new, size - 1)
-        new_args = take(args_s, rows)
-        states = where(fill, jax.vmap(init)(take(y0s, rows), new_args), states)
-        args = where(fill, new_args, args)
-        index = jnp.where(fill, new, index)
+        records = _store(records, states, index, finished)
+        states, args, index, fill = _refilled(
+            init, y0s, args_s, states, args, index, next_impact, free
+        )
         active = (active & ~finished) | fill
         next_impact = jnp.minimum(next_impact + jnp.sum(free), size)
         return states, args, index, active, next_impact, records
@@ -321,14 +307,48 @@ def solve_pool(term, solver, t0, t1, dt0, y0s, args_s, *, lanes, tail_lanes, **o
     states, args, index, active, _, records = jax.lax.while_loop(cond, body, carry)
     # The tail: the impacts still running, gathered into `tail_lanes` lanes (the slowest
     # impacts of a batch would otherwise keep every lane stepping).
-    records = store(records, states, index, finished_of(states, active))
+    records = _store(records, states, index, finished_of(states, active))
     active = active & jax.vmap(running)(states)
     order = jnp.argsort(~active, stable=True)[:tail_lanes]  # the running lanes first
-    states, args, index, active = take((states, args, index, active), order)
+    states, args, index, active = _take((states, args, index, active), order)
     states = jax.lax.while_loop(
         lambda x: jnp.any(active & jax.vmap(running)(x)),
         lambda x: step_lanes(x, args, active),
         states,
     )
-    records = store(records, states, index, active)
+    records = _store(records, states, index, active)
     return jax.vmap(finish)(records, args_s)
+
+
+def _take(tree, i):
+    """The rows ``i`` of every leaf of ``tree``."""
+    return jax.tree_util.tree_map(lambda x: x[i], tree)
+
+
+def _where(mask, a, b):
+    """``a`` where ``mask`` (one flag per lane), else ``b``, leaf by leaf."""
+    return jax.tree_util.tree_map(
+        lambda u, v: jnp.where(mask.reshape(mask.shape + (1,) * (u.ndim - 1)), u, v), a, b
+    )
+
+
+def _store(records, states, index, mask):
+    """Rows ``index`` of the batch's ``records`` set to the lanes' ``states`` where ``mask``."""
+    size = jax.tree_util.tree_leaves(records)[0].shape[0]
+    rows = jnp.where(mask, index, size)  # out of range: dropped
+    return jax.tree_util.tree_map(lambda r, x: r.at[rows].set(x, mode="drop"), records, states)
+
+
+def _refilled(init, y0s, args_s, states, args, index, next_impact, free):
+    """The free lanes started on the next impacts, the ``i``-th free lane on impact
+    ``next_impact + i`` while there is one (its first stage through ``init``): the lanes'
+    ``(states, args, index)`` and which lanes took an impact."""
+    size = jax.tree_util.tree_leaves(y0s)[0].shape[0]
+    new = next_impact + jnp.cumsum(free) - 1
+    fill = free & (new < size)
+    rows = jnp.minimum(new, size - 1)
+    new_args = _take(args_s, rows)
+    states = _where(fill, jax.vmap(init)(_take(y0s, rows), new_args), states)
+    args = _where(fill, new_args, args)
+    index = jnp.where(fill, new, index)
+    return states, args, index, fill
