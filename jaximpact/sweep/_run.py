@@ -155,39 +155,114 @@ def run_sweep(
             message names each setting that differs). All raised before any computing.
         SceneError: the scene file is invalid. OSError: files cannot be read or written.
     """
+    t_start = time.perf_counter()
+    plan = _plan(source, Path(output), scene_path, chunk_size, restart, process_index,
+                 process_count, columns, compression, stored_precision)  # fmt: skip
+    base, terms, cfg = _model_config(plan.scene, source, plan.chunk_size, plan.dtype)
+    fn, sharding = _runner(terms, cfg, plan.devices)
+    pipeline = _Pipeline(
+        source, base, plan.chunk_size, plan.dtype, fn, sharding, plan.directory, plan.manifest,
+        plan.result_columns, plan.own_completed, plan.own_failures, compression=compression,
+        stored=plan.stored_precision,
+    )  # fmt: skip
+    bar = _progress_bar(source, plan.chunk_size, plan.mine, plan.todo, progress, plan.directory,
+                        plan.index, plan.count)  # fmt: skip
+    pipeline.run(plan.todo, bar)
+    # begun before failure_reason
+    legacy = plan.chosen is None and plan.result_columns != RESULT_COLUMNS
+    return _summary(plan.directory, source, plan.chunk_size, plan.settings["n_chunks"], plan.mine,
+                    plan.todo, pipeline, plan.result_columns, t_start, len(plan.devices),
+                    legacy)  # fmt: skip
+
+
+@dataclass
+class _Plan:
+    """What a :func:`run_sweep` call does, worked out (every problem raised) before any
+    computing: its settings, this process's share of the chunks, and where that share
+    stands."""
+
+    directory: Path
+    devices: list
+    dtype: object
+    scene: object
+    chunk_size: int
+    index: int
+    count: int
+    chosen: tuple | None  # the result columns chosen (None: all, on a sweep begun so)
+    stored_precision: str
+    settings: dict
+    mine: list  # this process's chunks
+    todo: list  # those not done yet
+    result_columns: tuple
+    own_completed: list
+    own_failures: dict
+    manifest: dict  # the fixed fields of this process's manifest
+
+
+def _plan(source, directory: Path, scene_path, chunk_size, restart, process_index,
+          process_count, columns, compression, stored_precision) -> _Plan:  # fmt: skip
+    """:func:`run_sweep`'s arguments resolved (the sweep's own settings where continuing one)
+    and checked, the output directory prepared, and this process's share of the chunks
+    (``restart``: its results cleared)."""
     import jax
     import jax.numpy as jnp
 
     from .. import load_scene
 
-    t_start = time.perf_counter()
     devices = jax.local_devices()
     dtype = jnp.result_type(float)
     if chunk_size is None:
-        chunk_size = _existing_chunk_size(Path(output), restart) or default_chunk_size(
+        chunk_size = _existing_chunk_size(directory, restart) or default_chunk_size(
             dtype, len(devices)
         )
     index, count = _process_share(chunk_size, devices, process_index, process_count)
     scene = load_scene(scene_path)
+    chosen, stored_precision = _stored_choices(
+        directory, restart, columns, compression, stored_precision
+    )
+    settings, digest = _settings(scene_path, source, chunk_size, dtype, chosen, stored_precision)
+    _prepare_output(directory)  # before any computing: every file problem first
+    mine = [c for c in range(settings["n_chunks"]) if c % count == index]
+    result_columns, own_completed, own_failures, todo = _resumed(
+        directory, settings, digest, restart, chosen, mine, index, count
+    )
+    manifest = {
+        "format": FORMAT,
+        "settings_hash": digest,
+        "settings": settings,
+        "process_index": index,
+        "process_count": count,
+        "result_columns": list(result_columns),
+    }
+    return _Plan(
+        directory, devices, dtype, scene, chunk_size, index, count, chosen, stored_precision,
+        settings, mine, todo, result_columns, own_completed, own_failures, manifest,
+    )  # fmt: skip
+
+
+def _stored_choices(directory: Path, restart: bool, columns, compression, stored_precision):
+    """``(result columns, stored precision)`` of the sweep: the user's choices, checked, or
+    where not given the sweep's own when continuing one (``None`` columns: all of them)."""
     if compression is not None and compression not in COMPRESSIONS:
         raise SweepError(f"compression: {compression!r}; allowed: {', '.join(COMPRESSIONS)}")
     if stored_precision not in (None, "float64", "float32"):
         raise SweepError(f"stored_precision: {stored_precision!r}; allowed: float64, float32")
     chosen = result_columns_for(columns)
     if chosen is None:  # continuing: the sweep's own choice (all columns if it made none)
-        own = _existing_setting(Path(output), "result_columns", restart)
+        own = _existing_setting(directory, "result_columns", restart)
         chosen = tuple(own) if own else None
     if stored_precision is None:
-        own = _existing_setting(Path(output), "stored_precision", restart)
+        own = _existing_setting(directory, "stored_precision", restart)
         stored_precision = own or "float64"
-    settings, digest = _settings(scene_path, source, chunk_size, dtype, chosen, stored_precision)
-    n_chunks = settings["n_chunks"]
+    return chosen, stored_precision
 
-    directory = Path(output)
-    _prepare_output(directory)  # before any computing: every file problem first
-    mine = [c for c in range(n_chunks) if c % count == index]
+
+def _resumed(directory: Path, settings, digest, restart: bool, chosen, mine, index, count):
+    """Where this process's share of the sweep stands: with ``restart`` its results cleared,
+    else the manifests of the sweep continued and this process's temporaries removed.
+    Returns ``(result columns, own completed chunks, own failure counts, chunks to do)``."""
     if restart:
-        _clear_for_restart(directory, mine, index, count, n_chunks)
+        _clear_for_restart(directory, mine, index, count, settings["n_chunks"])
         manifests = {}
     else:
         manifests = _continued_manifests(directory, settings, digest, index, count)
@@ -198,26 +273,7 @@ def run_sweep(
     own_completed = sorted(int(c) for c in own_manifest["completed"])
     own_failures = _manifest_failures(directory, own_manifest) if own_completed else {}
     todo = [c for c in mine if c not in done]
-
-    base, terms, cfg = _model_config(scene, source, chunk_size, dtype)
-    fn, sharding = _runner(terms, cfg, devices)
-    manifest = {
-        "format": FORMAT,
-        "settings_hash": digest,
-        "settings": settings,
-        "process_index": index,
-        "process_count": count,
-        "result_columns": list(result_columns),
-    }
-    pipeline = _Pipeline(
-        source, base, chunk_size, dtype, fn, sharding, directory, manifest, result_columns,
-        own_completed, own_failures, compression=compression, stored=stored_precision,
-    )  # fmt: skip
-    bar = _progress_bar(source, chunk_size, mine, todo, progress, directory, index, count)
-    pipeline.run(todo, bar)
-    legacy = chosen is None and result_columns != RESULT_COLUMNS  # begun before failure_reason
-    return _summary(directory, source, chunk_size, n_chunks, mine, todo, pipeline, result_columns,
-                    t_start, len(devices), legacy)  # fmt: skip
+    return result_columns, own_completed, own_failures, todo
 
 
 def result_columns_for(columns) -> tuple[str, ...] | None:
