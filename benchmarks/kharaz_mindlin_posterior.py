@@ -7,7 +7,7 @@ Gorham & Salman (2001) with the Mindlin model, against an exact grid of the same
 2. The exact posterior on a grid: the Gaussian likelihood with the three noise factors
    (cor_t, omega_out, rebound_angle_deg: the data give no sigmas) integrated out in closed
    form, the default log-uniform priors, the sampler's tolerance: exactly the density that
-   SMC samples (`fitting._bayesian.posterior.grid_reference`), on the fit's whitened axes at
+   SMC samples (`fitting._bayesian.grid_reference.grid_reference`), on the fit's whitened axes at
    two resolutions (their difference is the grid's own error).
 3. The command's posterior mean, 5/50/95 % quantiles and sd against the grid's, in units of the
    grid's sd (issue 52's target: 0.1 sd), and the evaluations it took.
@@ -54,7 +54,7 @@ def grid(points):
     jax.config.update("jax_enable_x64", True)
     import fitting
     import jaximpact
-    from fitting._bayesian.posterior import grid_reference
+    from fitting._bayesian.grid_reference import grid_reference
 
     scene = jaximpact.load_scene("kharaz2001_mindlin")
     fit = fitting.fit(scene, fitting.load_kharaz2001(), NAMES, progress=False)

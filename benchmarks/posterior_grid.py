@@ -2,7 +2,7 @@
 
 Synthetic Table 1 data (truth C_A = 0.75 s/m, C_H = 0.25 s/m, f0 = 300 N/m; cor_n with sigma
 0.003, observed captures as ``captured``), one noise draw per case. For each case: the exact
-posterior by `fitting._bayesian.posterior.grid_reference` at two resolutions (their
+posterior by `fitting._bayesian.grid_reference.grid_reference` at two resolutions (their
 difference is the grid's own error), then `fitting.sample_posterior` with the default sampler
 (SMC) and with the independence sampler (the default before), each from a cold start of its
 program in this process. Errors are in units of the grid's sd: mean and 5/50/95 % quantiles
@@ -51,7 +51,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import fitting  # noqa: E402
-from fitting._bayesian.posterior import grid_reference  # noqa: E402
+from fitting._bayesian.grid_reference import grid_reference  # noqa: E402
 
 TRUTH = {"C_A": 0.75, "C_H": 0.25, "f0": 300.0}
 SIGMA = 0.003
@@ -214,7 +214,8 @@ def sliced_grid(fit, priors, draws, *, slices=60, points=40, half_width=8.0):
     evaluated exactly on them, and the mass on each slice's faces (``face_mass``) says whether
     a slice missed part of the posterior. Summaries as
     `grid_reference` (cells as weighted points, each spread over 2^3 points)."""
-    from fitting._bayesian.posterior import BLOCK, _blocks, _weighted_summary, posterior_setup
+    from fitting._bayesian.grid_reference import _weighted_summary, posterior_setup
+    from fitting._bayesian.programs import BLOCK, _blocks
 
     space, batch, _, _ = posterior_setup(fit, priors)
     evaluate = _blocks(batch, BLOCK)

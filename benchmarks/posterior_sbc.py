@@ -143,7 +143,7 @@ def grid_check(design, seed, draws, points=36):
     """Replication ``seed``'s data again, its exact posterior on a grid of the same log density
     (``grid_reference(axes="parameters")``) and SMC's (``draws`` particles per population):
     each parameter's posterior probability below the truth, by both."""
-    from fitting._bayesian.posterior import grid_reference
+    from fitting._bayesian.grid_reference import grid_reference
 
     with tempfile.TemporaryDirectory() as tmp:
         data, truth, _, _ = _replication_data(tmp, design, seed)
@@ -281,7 +281,7 @@ def sharp_exact_check(design, seeds, bank, sbc_rows, size=2000, rounds=3, nu=4.0
     2,000 prior draws; 2.7x fewer steps)."""
     from scipy.stats import multivariate_t
 
-    from fitting._bayesian.posterior import SAMPLING_RTOL, _at_tolerance
+    from fitting._bayesian.programs import SAMPLING_RTOL, _at_tolerance
 
     L_bank, M_bank = bank
     box = np.log(np.array(list(PRIOR.values())))

@@ -153,7 +153,7 @@ def test_loop_kernels_keep_results_batch_exact_and_accurate():
 LAGGING_DEVICE_SCRIPT = """
 import jax, jax.numpy as jnp, numpy as np
 import jaximpact as ji
-from fitting._bayesian.posterior import over_devices
+from fitting._bayesian.programs import over_devices
 jax.config.update("jax_enable_x64", True)
 scene = ji.table1_scene()
 speed = np.linspace(0.5, 3, 31)  # 31 impacts: padded to 32, cut back to 31 after the solve

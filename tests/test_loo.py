@@ -272,6 +272,7 @@ def test_leaving_out_an_observation_gives_the_posterior_of_the_rest():
     """A linear-Gaussian toy (residuals ``A u - y``, unit sigma) through the sampler's path with
     one observation's likelihood weight 0: the closed-form posterior of the other rows."""
     from fitting._bayesian import posterior as _posterior
+    from fitting._bayesian import programs
     from fitting._bayesian.priors import priors_for
 
     names = ("C_A", "f0")
@@ -287,7 +288,7 @@ def test_leaving_out_an_observation_gives_the_posterior_of_the_rest():
         lambda u: jnp.asarray(A) @ u - jnp.asarray(y), names, cov_all @ A.T @ y, cov_all,
         priors_for(names, None), np.full(8, -1), (), [], likelihood="gaussian", nu=4.0,
         chains=4, draws=500, warmup=1, seed=0, jitter=0.5, target_accept=0.9, progress=False,
-        weight=_posterior._weights(8, [0]),
+        weight=programs._weights(8, [0]),
     )  # fmt: skip
     u = np.log(post.draws.reshape(-1, 2))
     sd = np.sqrt(np.diag(cov))
@@ -302,6 +303,7 @@ def test_a_noise_factor_whose_only_observation_is_left_out_follows_its_prior():
     """Two noise groups, the second with one row: left out, its factor is still sampled (the
     held-out term needs it at the refit's draws), from its log-uniform prior on [1e-3, 1e3]."""
     from fitting._bayesian import posterior as _posterior
+    from fitting._bayesian import programs
     from fitting._bayesian.priors import priors_for
 
     names = ("C_A", "f0")
@@ -314,7 +316,7 @@ def test_a_noise_factor_whose_only_observation_is_left_out_follows_its_prior():
         lambda u: jnp.asarray(A) @ u - jnp.asarray(y), names, cov @ A.T @ y, cov,
         priors_for(names, None), groups, ("sigma_factor[a]", "sigma_factor[b]"), [0.0, 0.0],
         likelihood="gaussian", nu=4.0, chains=4, draws=500, warmup=1, seed=0, jitter=0.5,
-        target_accept=0.9, progress=False, weight=_posterior._weights(9, [0]),
+        target_accept=0.9, progress=False, weight=programs._weights(9, [0]),
     )  # fmt: skip
     assert post.noise_draws.shape[-1] == 2
     log_s = np.log(post.noise_draws[..., 1]).ravel()

@@ -15,6 +15,7 @@ import pytest
 from scipy import stats
 
 from fitting._bayesian import posterior as _posterior
+from fitting._bayesian import programs
 from fitting._bayesian.grid import compare, grid_posterior
 from fitting._bayesian.likelihood import (
     NOISE_FACTOR_RANGE,
@@ -229,4 +230,4 @@ def test_student_t_cannot_integrate_its_noise_factors():
             progress=False, noise_treatment="integrated",
         )  # fmt: skip
     with pytest.raises(FitError, match="noise must be one of"):
-        _posterior._integrates("marginal", "gaussian", ("a",))
+        programs._integrates("marginal", "gaussian", ("a",))

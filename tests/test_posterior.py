@@ -18,7 +18,7 @@ import pytest
 import fitting
 import jaximpact
 from fitting import _design
-from fitting._bayesian import diagnostics
+from fitting._bayesian import diagnostics, independence, programs, result
 from fitting._bayesian import posterior as _posterior
 from fitting._bayesian.priors import Prior, parse_prior, priors_for
 from fitting._bayesian.report import add_to_result_dict
@@ -86,7 +86,7 @@ def test_sampler_recovers_linear_gaussian_posterior(toy_posterior):
     result, mean, cov = toy_posterior
     assert result.sampler == "smc" and "from a t on the least-squares fit" in result.reason
     assert "importance sample" in result.reason and result.evaluations == 4 * 1000
-    assert all(result.summary[n]["ess_tail"] >= _posterior.MIN_ESS for n in NAMES)
+    assert all(result.summary[n]["ess_tail"] >= result.MIN_ESS for n in NAMES)
     _check_gaussian_posterior(result, mean, cov)
 
 
@@ -125,7 +125,7 @@ def test_independence_proposal_is_replaced_when_the_pilot_misses(monkeypatch):
     main proposal's Pareto k is above 0.7 (without re-placing it the run is refused); placed
     again on its importance weights, wider, the sampler recovers the posterior by itself."""
     residuals, A, y, mean, cov = _linear_problem()
-    monkeypatch.setattr(_posterior, "REFINEMENTS", 0)
+    monkeypatch.setattr(independence, "REFINEMENTS", 0)
     once = _sample_toy(residuals, len(y), mean, cov * 1e-2, sampler="independence")
     assert once.khat > 0.7 and not once.converged
     monkeypatch.undo()
@@ -141,7 +141,7 @@ def test_independence_chains_just_above_the_rhat_limit_are_extended(monkeypatch)
     is right. (Of 12 seeds refused at 100 draws, 10 converged extended.)"""
     residuals, A, y, mean, cov = _linear_problem()
     short = dict(sampler="independence", draws=100, warmup=50, seed=32)
-    monkeypatch.setattr(_posterior, "EXTENSIONS", 0)
+    monkeypatch.setattr(independence, "EXTENSIONS", 0)
     refused = _sample_toy(residuals, len(y), mean, cov, **short)
     assert not refused.converged and any("R-hat" in p for p in refused.problems)
     assert refused.draws.shape[1] == 100
@@ -151,7 +151,7 @@ def test_independence_chains_just_above_the_rhat_limit_are_extended(monkeypatch)
     assert max(extended.summary[n]["rhat"] for n in NAMES) <= _posterior.MAX_RHAT
     _check_gaussian_posterior(extended, mean, cov)
     # not for chains that do not mix (R-hat above MAX_RHAT_TO_EXTEND) nor for short runs
-    assert _posterior.MAX_RHAT_TO_EXTEND < 1.5 and _posterior.MIN_DRAWS_TO_EXTEND > 60
+    assert independence.MAX_RHAT_TO_EXTEND < 1.5 and independence.MIN_DRAWS_TO_EXTEND > 60
 
 
 def _check_gaussian_posterior(result, mean, cov):
@@ -186,7 +186,7 @@ def test_log_density_gradient_matches_finite_differences():
     }
     groups = np.zeros(len(y), int)
     groups[:5] = -1  # rows with their own sigma
-    f = _posterior._log_density(residuals, names, priors, groups, 1, "student-t", 4.0)
+    f = programs._log_density(residuals, names, priors, groups, 1, "student-t", 4.0)
     z = np.array([-0.3, -3.2, 5.6, math.log(1.7)])  # friction 10 sigmoid(-3.2) = 0.39
     grad = np.asarray(jax.jit(jax.grad(f))(z))
     f = jax.jit(f)
@@ -204,14 +204,14 @@ def test_refusal_on_rhat_and_divergences():
     assert abs(diagnostics.split_rhat(good) - 1) < 0.01
     assert diagnostics.ess(good) == pytest.approx(4000, rel=0.15)
     stats = {"C_A": {"rhat": diagnostics.split_rhat(good)}}
-    assert _posterior.judge(stats, 0) == []
-    assert "divergent" in _posterior.judge(stats, 1)[0]
+    assert result.judge(stats, 0) == []
+    assert "divergent" in result.judge(stats, 1)[0]
     bad = good.copy()
     bad[0] += 1.0
     rhat = diagnostics.split_rhat(bad)
     assert 1.03 < rhat < 1.15
-    assert "R-hat of f0" in _posterior.judge({"C_A": stats["C_A"], "f0": {"rhat": rhat}}, 0)[0]
-    assert _posterior.judge({"C_A": {"rhat": math.nan}}, 0)
+    assert "R-hat of f0" in result.judge({"C_A": stats["C_A"], "f0": {"rhat": rhat}}, 0)[0]
+    assert result.judge({"C_A": {"rhat": math.nan}}, 0)
 
 
 @pytest.mark.slow  # a second sampler compilation

@@ -34,8 +34,11 @@ from jaximpact._engine.devices import engine_jit
 
 from .._least_squares.fit import FitError
 from .._least_squares.transforms import to_unbounded
-from .posterior import PosteriorResult, _model_residuals, noise_factors, sample_posterior
+from .likelihood import noise_factors
+from .posterior import sample_posterior
+from .programs import _model_residuals
 from .report import import_arviz
+from .result import PosteriorResult
 
 __all__ = [
     "LOO",

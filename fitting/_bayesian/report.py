@@ -20,7 +20,8 @@ from .._least_squares.report import (
     observable_label,
     parameter_label,
 )
-from .posterior import PosteriorResult, posterior_predictive
+from .posterior import posterior_predictive
+from .result import PosteriorResult
 
 __all__ = [
     "plot_corner",

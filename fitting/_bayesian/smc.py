@@ -55,6 +55,7 @@ from scipy.stats import rankdata
 from tqdm.auto import tqdm
 
 from .diagnostics import pareto_khat
+from .smc_moves import _independence_proposal, _langevin_drift, _tempered_gradient
 
 __all__ = ["Reference", "SMCRun", "run_smc"]
 
@@ -278,138 +279,6 @@ def _covariance(X: np.ndarray) -> np.ndarray:
     return np.eye(d) * 1e-2
 
 
-#: The independence proposal: a Gaussian mixture fitted to the population by EM (at most
-#: COMPONENTS components, each with its own covariance, so that a curved ridge is covered by
-#: straight pieces that follow it), its covariances widened by MIXTURE_WIDTH^2, mixed with a
-#: Student-t (WIDE_NU degrees of freedom) on the population's mean and twice its standard
-#: deviations (share WIDE). The wide part gives the proposal heavier tails than the target,
-#: without which an independence sampler cannot grow a population that is too narrow.
-COMPONENTS = 8
-MIXTURE_WIDTH = 1.2
-EM_ITERATIONS = 40
-WIDE = 0.25
-WIDE_NU = 3.0
-
-
-def _gaussian_log_densities(Y, means, chols):
-    """``(n, m)`` log densities of the rows of ``Y`` under each Gaussian component."""
-    n, d = Y.shape
-    out = np.empty((n, len(means)))
-    for j, (mean, chol) in enumerate(zip(means, chols, strict=True)):
-        z = np.linalg.solve(chol, (Y - mean).T)
-        out[:, j] = (
-            -0.5 * np.sum(z * z, axis=0)
-            - np.sum(np.log(np.diag(chol)))
-            - 0.5 * d * math.log(2 * math.pi)
-        )
-    return out
-
-
-def _fit_mixture(rng, X: np.ndarray, chol: np.ndarray):
-    """A Gaussian mixture fitted to ``X`` by EM (k-means++ starts in the population's
-    whitened coordinates, covariances regularized by 1e-4 of the population's): ``(log
-    weights, means, Cholesky factors)``."""
-    n, d = X.shape
-    m = max(1, min(COMPONENTS, n // (10 * (d + 1))))
-    W = np.linalg.solve(chol, X.T).T
-    centres = [W[rng.integers(n)]]
-    for _ in range(1, m):  # k-means++: each new centre far from the others
-        d2 = np.min(((W[:, None, :] - np.array(centres)[None]) ** 2).sum(-1), axis=1)
-        centres.append(W[rng.choice(n, p=d2 / d2.sum()) if d2.sum() > 0 else rng.integers(n)])
-    labels = np.argmin(((W[:, None, :] - np.array(centres)[None]) ** 2).sum(-1), axis=1)
-    resp = np.eye(m)[labels]
-    floor = 1e-4 * (chol @ chol.T) + 1e-12 * np.eye(d)
-    for it in range(EM_ITERATIONS + 1):
-        weight = resp.sum(axis=0) + 1e-12
-        means = (resp.T @ X) / weight[:, None]
-        chols = []
-        for j in range(m):
-            dev = X - means[j]
-            cov = (resp[:, j, None] * dev).T @ dev / weight[j] + floor
-            chols.append(np.linalg.cholesky(cov))
-        log_w = np.log(weight / n)
-        if it == EM_ITERATIONS:
-            break
-        log_p = _gaussian_log_densities(X, means, chols) + log_w
-        resp = np.exp(log_p - logsumexp(log_p, axis=1, keepdims=True))
-    return log_w, means, chols
-
-
-def _independence_proposal(rng, X: np.ndarray, chol: np.ndarray, n: int):
-    """``n`` draws of the independence proposal fitted to the particles ``X`` (``chol``: the
-    Cholesky factor of the population's covariance), and its log density ``Y -> (n,)``."""
-    d = X.shape[1]
-    log_w, means, chols = _fit_mixture(rng, X, chol)
-    chols = [MIXTURE_WIDTH * c for c in chols]
-    mean = X.mean(axis=0)
-    component = rng.choice(len(means), size=n, p=np.exp(log_w) / np.exp(log_w).sum())
-    Z = rng.standard_normal((n, d))
-    Xp = np.empty((n, d))
-    for j in range(len(means)):
-        pick = component == j
-        Xp[pick] = means[j] + Z[pick] @ chols[j].T
-    wide = rng.uniform(size=n) < WIDE
-    g = rng.chisquare(WIDE_NU, (n, 1))
-    Xp[wide] = (mean + 2.0 * (Z @ chol.T) / np.sqrt(g / WIDE_NU))[wide]
-    log_det = float(np.sum(np.log(np.diag(chol))))
-
-    def log_q(Y):
-        mixture = logsumexp(_gaussian_log_densities(Y, means, chols) + log_w, axis=1)
-        y = np.linalg.solve(chol, (Y - mean).T).T / 2.0
-        t = (
-            math.lgamma((WIDE_NU + d) / 2)
-            - math.lgamma(WIDE_NU / 2)
-            - 0.5 * d * math.log(WIDE_NU * math.pi)
-            - d * math.log(2.0)
-            - log_det
-            - 0.5 * (WIDE_NU + d) * np.log1p(np.sum(y * y, axis=1) / WIDE_NU)
-        )
-        return np.logaddexp(math.log1p(-WIDE) + mixture, math.log(WIDE) + t)
-
-    return Xp, log_q
-
-
-#: A MALA step's drift is at most this many proposal standard deviations long (in the
-#: population's whitened coordinates): where the gradient is steep (a particle far out in a
-#: thin ridge's tail) the full drift throws every proposal away and the particle never moves
-#: (seen: a curved ridge's sd 30 % wide); truncated, the step is a random walk there
-#: (Roberts & Tweedie 1996, MALTA). The drift is a fixed function of the position: the
-#: Metropolis-Hastings ratio stays exact.
-MALA_MAX_DRIFT = 2.0
-
-
-def _langevin_drift(gradient, chol, h) -> np.ndarray:
-    """``h^2 / 2 Sigma grad`` (``Sigma = chol chol^T``), each row's length in whitened
-    coordinates capped at :data:`MALA_MAX_DRIFT` ``h``."""
-    whitened = 0.5 * h * h * (np.asarray(gradient) @ chol)
-    length = np.linalg.norm(whitened, axis=1, keepdims=True)
-    cap = MALA_MAX_DRIFT * h
-    whitened = whitened * np.minimum(1.0, cap / np.maximum(length, 1e-300))
-    return whitened @ chol.T
-
-
-def _tempered_gradient(beta: float, grad_posterior, reference: Reference, X) -> np.ndarray:
-    """Gradient of ``ln pi_b = (1 - b) ln q0 + b ln posterior`` at ``X`` (the reference's by
-    central differences; a non-finite entry as 0: that particle's step is a random walk)."""
-    g = beta * np.asarray(grad_posterior, float)
-    if beta < 1.0:
-        g = g + (1.0 - beta) * _numerical_gradient(reference.log_density, X)
-    return np.where(np.isfinite(g), g, 0.0)
-
-
-def _numerical_gradient(f, X) -> np.ndarray:
-    """Central differences of ``f: (n, d) -> (n,)`` at the rows of ``X``."""
-    X = np.asarray(X, float)
-    out = np.empty_like(X)
-    for j in range(X.shape[1]):
-        h = 1e-5 * (1.0 + np.abs(X[:, j]))
-        up, down = X.copy(), X.copy()
-        up[:, j] += h
-        down[:, j] -= h
-        out[:, j] = (np.asarray(f(up)) - np.asarray(f(down))) / (2 * h)
-    return out
-
-
 def _correlation(anchor: np.ndarray, X: np.ndarray) -> float:
     """Largest correlation over coordinates between positions ``anchor`` and ``X`` (1 where a
     coordinate does not vary: nothing moved)."""
@@ -472,19 +341,102 @@ def run_smc(
     K, N = populations, particles
     d = len(reference.mean)
     bar = tqdm(desc=description, unit="point", disable=not progress, file=sys.stderr, leave=False)
-    evaluations = 0
+    counter = [0]
 
     def run(X):
         """Log densities ``(n,)`` and the carried numbers ``(n, m)`` of the rows of ``X``."""
-        nonlocal evaluations
         out = np.asarray(evaluate(X), float)
-        evaluations += len(X)
+        counter[0] += len(X)
         bar.update(len(X))
         if out.ndim == 1:
             out = out[:, None]
         return np.nan_to_num(out[:, 0], nan=-np.inf), out[:, 1:]
 
+    try:
+        pop, reference = _first_draws(run, reference, fallback, K, N, rng)
+    except ValueError:
+        bar.close()
+        raise
+    pop.rw_scale[:] = MALA_STEP / d ** (1 / 6) if gradient else 2.38 / math.sqrt(d)
+    local_accept = MALA_ACCEPT if gradient else RW_ACCEPT
+    while not np.all(pop.finished):
+        for k in np.flatnonzero(~pop.finished):
+            if pop.reweight[k]:
+                _reweight(pop, k, rng)
+        active = np.flatnonzero(~pop.finished)
+        if active.size == 0:
+            break
+        # One move of every active population: proposals, one batch of evaluations.
+        proposed = [_propose(pop, k, rng, reference, gradient) for k in active]
+        lp_new, aux_new = run(np.concatenate([p.X for p in proposed]))
+        lp_new, aux_new = lp_new.reshape(len(active), N), aux_new.reshape(len(active), N, -1)
+        for i, k in enumerate(active):
+            _accept(pop, k, proposed[i], lp_new[i], aux_new[i], rng, reference, local_accept)
+        bar.set_postfix(b=f"{np.min(pop.beta):.3g}", refresh=False)
+    bar.close()
+    return SMCRun(
+        draws=pop.X,
+        log_density=pop.lp,
+        stages=pop.stages,
+        moves=pop.moves,
+        acceptance=pop.accepted / pop.total if pop.total else math.nan,
+        correlation=pop.correlation,
+        khat=pop.khat,
+        log_evidence=pop.log_evidence,
+        evaluations=counter[0],
+        seconds=time.perf_counter() - t0,
+        problems=pop.stuck,
+        from_fallback=reference is fallback,
+        final_ess=pop.final_ess,
+        importance_only=pop.importance_only,
+        aux=pop.aux,
+    )
+
+
+@dataclass
+class _Populations:
+    """The state of :func:`run_smc`'s ``K`` populations of ``N`` particles: positions ``X``
+    ``(K, N, d)``, their log posterior ``lp`` and reference ``lq`` densities and carried
+    numbers ``aux``, and per population its temperature, counts and verdicts."""
+
+    X: np.ndarray
+    lp: np.ndarray
+    lq: np.ndarray
+    aux: np.ndarray
+
+    def __post_init__(self):
+        K, N = self.lp.shape
+        self.beta = np.zeros(K)
+        self.stages = np.zeros(K, int)
+        self.moves = np.zeros(K, int)
+        self.log_evidence = np.zeros(K)
+        self.final_ess = np.zeros(K)
+        self.group = np.tile(np.arange(N) % 2, (K, 1))
+        self.anchor = self.X.copy()
+        self.moved = np.zeros(K, int)  # moves since the last resampling
+        self.reweight = np.ones(K, bool)
+        self.finished = np.zeros(K, bool)
+        self.rw_scale = np.zeros(K)
+        self.correlation = np.ones(K)
+        self.accepted = self.total = 0
+        self.khat = 0.0
+        self.stuck: list[str] = []
+        self.importance_only = np.zeros(K, bool)
+
+    def take(self, k, pick, X=None, lp=None, lq=None, aux=None):
+        """Population ``k``'s particles become rows ``pick`` of its own (or of the given)."""
+        self.X[k] = (self.X[k] if X is None else X)[pick]
+        self.lp[k] = (self.lp[k] if lp is None else lp)[pick]
+        self.lq[k] = (self.lq[k] if lq is None else lq)[pick]
+        self.aux[k] = (self.aux[k] if aux is None else aux)[pick]
+
+
+def _first_draws(run, reference, fallback, K, N, rng):
+    """The populations drawn from ``reference`` (or from ``fallback`` where the reference's
+    pooled importance weights fail the test of a direct step to b = 1: see :func:`run_smc`),
+    and the reference they came from."""
     X, from_prior = reference.sample(rng, K * N)
+    d = X.shape[1]
     # The prior component's draws reach stiff corners of the prior whose impacts take many
     # steps; evaluated apart, they do not hold up the batches of the rest.
     order = np.argsort(from_prior, kind="stable")
@@ -507,159 +459,138 @@ def run_smc(
         X = X.reshape(K, N, d)
         lq = np.array(reference.log_density(X.reshape(-1, d)), float).reshape(K, N)
     if not np.any(np.isfinite(lp)):
-        bar.close()
         raise ValueError("the log posterior is -inf or NaN at every draw of the reference")
+    return _Populations(X, lp, lq, aux), reference
 
-    beta = np.zeros(K)
-    stages = np.zeros(K, int)
-    moves = np.zeros(K, int)
-    log_evidence = np.zeros(K)
-    final_ess = np.zeros(K)
-    group = np.tile(np.arange(N) % 2, (K, 1))
-    anchor = X.copy()
-    moved = np.zeros(K, int)  # moves since the last resampling
-    reweight = np.ones(K, bool)
-    finished = np.zeros(K, bool)
-    rw_scale = np.full(K, MALA_STEP / d ** (1 / 6) if gradient else 2.38 / math.sqrt(d))
-    local_accept = MALA_ACCEPT if gradient else RW_ACCEPT
-    correlation = np.ones(K)
-    accepted = total = 0
-    khat = 0.0
-    stuck: list[str] = []
-    importance_only = np.zeros(K, bool)
 
-    while not np.all(finished):
-        for k in np.flatnonzero(~finished):
-            if not reweight[k]:
+def _reweight(pop: _Populations, k: int, rng) -> None:
+    """Population ``k``'s next tempering step: reweight to the next ``b``, then resample (or,
+    at ``b = 1`` straight from the reference with certified weights, end it as an importance
+    sample)."""
+    N = pop.lp.shape[1]
+    delta = pop.lp[k] - pop.lq[k]
+    new = _next_beta(pop.beta[k], delta, N)
+    log_w = (new - pop.beta[k]) * delta
+    log_w = np.where(np.isfinite(log_w), log_w, -np.inf)
+    pop.log_evidence[k] += logsumexp(log_w) - math.log(N)
+    pop.final_ess[k] = _ess(log_w)
+    if new >= 1.0:
+        pop.khat = max(pop.khat, _khat(log_w))
+        if pop.stages[k] == 0 and _certified(log_w, N):
+            pop.take(k, _importance_resample(rng, log_w, N))
+            pop.beta[k], pop.stages[k], pop.reweight[k] = 1.0, 1, False
+            pop.importance_only[k] = pop.finished[k] = True
+            pop.correlation[k] = math.nan
+            return
+    pick = _systematic(rng, log_w, N)
+    pop.group[k] = rng.permutation(N)[pick] % 2  # the copies of one particle together
+    pop.take(k, pick)
+    pop.beta[k], pop.stages[k] = new, pop.stages[k] + 1
+    pop.anchor[k], pop.moved[k], pop.reweight[k] = pop.X[k].copy(), 0, False
+
+
+@dataclass
+class _Proposal:
+    """One population's proposals ``X``, the log proposal ratio ``q(x | x') / q(x' | x)``
+    (None for MALA until the gradient at ``X`` is known), the independence proposal's own
+    log density at ``X`` (None for local moves) and MALA's ``(forward, chol, h)``."""
+
+    X: np.ndarray
+    log_ratio: np.ndarray | None
+    log_proposal: np.ndarray | None = None
+    langevin: tuple | None = None
+
+
+def _propose(pop: _Populations, k: int, rng, reference: Reference, gradient: bool) -> _Proposal:
+    """Population ``k``'s proposals: an independence proposal on even moves, else a random
+    walk (or a MALA step where ``gradient``), scaled by the population's covariance."""
+    Xk = pop.X[k]
+    N, d = Xk.shape
+    chol = _covariance(Xk)
+    if pop.moved[k] % 2 == 0:  # independence proposal (see _independence_proposal)
+        # Each half of the particles moves by a proposal fitted to the other half: a
+        # proposal fitted to the particles it moves is densest where they already are
+        # (the mixture overfits them), which favours moves away and widens the result
+        # (by 3 % of the sd on the grid cases, before this split).
+        Xp, ratio, own = np.empty((N, d)), np.empty(N), np.empty(N)
+        for half in (0, 1):
+            moving = pop.group[k] == half
+            if not moving.any():
                 continue
-            delta = lp[k] - lq[k]
-            new = _next_beta(beta[k], delta, N)
-            log_w = (new - beta[k]) * delta
-            log_w = np.where(np.isfinite(log_w), log_w, -np.inf)
-            log_evidence[k] += logsumexp(log_w) - math.log(N)
-            final_ess[k] = _ess(log_w)
-            if new >= 1.0:
-                khat = max(khat, _khat(log_w))
-                if stages[k] == 0 and _certified(log_w, N):
-                    pick = _importance_resample(rng, log_w, N)
-                    X[k], lp[k], lq[k], aux[k] = X[k][pick], lp[k][pick], lq[k][pick], aux[k][pick]
-                    beta[k], stages[k], reweight[k] = 1.0, 1, False
-                    importance_only[k] = finished[k] = True
-                    correlation[k] = math.nan
-                    continue
-            pick = _systematic(rng, log_w, N)
-            group[k] = rng.permutation(N)[pick] % 2  # the copies of one particle together
-            X[k], lp[k], lq[k], aux[k] = X[k][pick], lp[k][pick], lq[k][pick], aux[k][pick]
-            beta[k], stages[k] = new, stages[k] + 1
-            anchor[k], moved[k], reweight[k] = X[k].copy(), 0, False
-        active = np.flatnonzero(~finished)
-        if active.size == 0:
-            break
+            others = Xk[~moving] if (~moving).sum() > 2 * d else Xk
+            draws, log_q = _independence_proposal(
+                rng, others, _covariance(others), int(moving.sum())
+            )
+            Xp[moving] = draws
+            own[moving] = log_q(draws)
+            ratio[moving] = log_q(Xk[moving]) - own[moving]
+        return _Proposal(Xp, ratio, own)
+    h = pop.rw_scale[k]
+    if gradient:  # MALA (its proposal ratio needs the gradient at Xp: after the run)
+        drift = _tempered_gradient(pop.beta[k], pop.aux[k][:, -d:], reference, Xk)
+        forward = Xk + _langevin_drift(drift, chol, h)
+        Xp = forward + h * rng.standard_normal((N, d)) @ chol.T
+        return _Proposal(Xp, None, langevin=(forward, chol, h))
+    return _Proposal(Xk + h * rng.standard_normal((N, d)) @ chol.T, np.zeros(N))
 
-        # One move of every active population: proposals, one batch of evaluations.
-        proposals, log_ratio, log_proposal, langevin = [], [], [], []
-        for k in active:
-            chol = _covariance(X[k])
-            if moved[k] % 2 == 0:  # independence proposal (see _independence_proposal)
-                # Each half of the particles moves by a proposal fitted to the other half: a
-                # proposal fitted to the particles it moves is densest where they already are
-                # (the mixture overfits them), which favours moves away and widens the result
-                # (by 3 % of the sd on the grid cases, before this split).
-                Xp, ratio, own = np.empty((N, d)), np.empty(N), np.empty(N)
-                for half in (0, 1):
-                    moving = group[k] == half
-                    if not moving.any():
-                        continue
-                    others = X[k][~moving] if (~moving).sum() > 2 * d else X[k]
-                    draws, log_q = _independence_proposal(
-                        rng, others, _covariance(others), int(moving.sum())
-                    )
-                    Xp[moving] = draws
-                    own[moving] = log_q(draws)
-                    ratio[moving] = log_q(X[k][moving]) - own[moving]
-                log_ratio.append(ratio)
-                log_proposal.append(own)
-            elif gradient:  # MALA (its proposal ratio needs the gradient at Xp: after the run)
-                h = rw_scale[k]
-                drift = _tempered_gradient(beta[k], aux[k][:, -d:], reference, X[k])
-                forward = X[k] + _langevin_drift(drift, chol, h)
-                Xp = forward + h * rng.standard_normal((N, d)) @ chol.T
-                log_ratio.append(None)
-                log_proposal.append(None)
-                langevin.append((k, forward, chol, h))
-            else:  # random walk
-                Xp = X[k] + rw_scale[k] * rng.standard_normal((N, d)) @ chol.T
-                log_ratio.append(np.zeros(N))
-                log_proposal.append(None)
-            proposals.append(Xp)
-            if len(langevin) < len(proposals):
-                langevin.append(None)
-        lp_new, aux_new = run(np.concatenate(proposals))
-        lp_new, aux_new = lp_new.reshape(len(active), N), aux_new.reshape(len(active), N, -1)
-        for i, k in enumerate(active):
-            Xp = proposals[i]
-            lq_new = np.array(reference.log_density(Xp), float)
-            if langevin[i] is not None:
-                _, forward, chol, h = langevin[i]
-                drift = _tempered_gradient(beta[k], aux_new[i][:, -d:], reference, Xp)
-                backward = Xp + _langevin_drift(drift, chol, h)
-                there = np.linalg.solve(chol, (Xp - forward).T)
-                back = np.linalg.solve(chol, (X[k] - backward).T)
-                ratio = (np.sum(there**2, axis=0) - np.sum(back**2, axis=0)) / (2 * h * h)
-                log_ratio[i] = np.where(np.isfinite(ratio), ratio, -np.inf)
-            if beta[k] >= 1.0 and moved[k] == 0 and log_proposal[i] is not None:
-                # The proposals as an importance sample of the posterior (module docstring).
-                log_w = np.where(np.isfinite(lp_new[i]), lp_new[i] - log_proposal[i], -np.inf)
-                if _certified(log_w, N):
-                    pick = _importance_resample(rng, log_w, N)
-                    X[k], lp[k], lq[k] = Xp[pick], lp_new[i][pick], lq_new[pick]
-                    aux[k] = aux_new[i][pick]
-                    final_ess[k], moves[k], correlation[k] = _ess(log_w), moves[k] + 1, math.nan
-                    importance_only[k] = finished[k] = True
-                    continue
-            log_alpha = beta[k] * (lp_new[i] - lp[k]) + (1 - beta[k]) * (lq_new - lq[k])
-            log_alpha = np.where(np.isfinite(lp_new[i]), log_alpha + log_ratio[i], -np.inf)
-            take = np.log(rng.uniform(size=N)) < log_alpha
-            X[k][take], lp[k][take], lq[k][take] = Xp[take], lp_new[i][take], lq_new[take]
-            aux[k][take] = aux_new[i][take]
-            rate = float(np.mean(take))
-            accepted, total = accepted + int(take.sum()), total + N
-            if moved[k] % 2 == 1:
-                rw_scale[k] = float(np.clip(rw_scale[k] * math.exp(rate - local_accept), 0.02, 5.0))
-            moved[k] += 1
-            moves[k] += 1
-            correlation[k] = _correlation(anchor[k], X[k])
-            limit = DECORRELATION if beta[k] >= 1.0 else STAGE_DECORRELATION
-            most = MAX_MOVES if beta[k] >= 1.0 else MAX_STAGE_MOVES
-            if correlation[k] < limit or moved[k] >= most:
-                if correlation[k] >= limit and beta[k] >= 1.0 and _copies_stuck(anchor[k], X[k]):
-                    ranked = _rank_correlation(anchor[k], X[k])
-                    stuck.append(
-                        f"population {k + 1}: the moves left a correlation of "
-                        f"{correlation[k]:.2f} (of ranks: {ranked:.2f}) with their positions "
-                        f"at the last resampling after {MAX_MOVES} moves (the copies it made "
-                        "have not moved apart)"
-                    )
-                if beta[k] >= 1.0:
-                    finished[k] = True
-                else:
-                    reweight[k] = True
-        bar.set_postfix(b=f"{np.min(beta):.3g}", refresh=False)
-    bar.close()
-    return SMCRun(
-        draws=X,
-        log_density=lp,
-        stages=stages,
-        moves=moves,
-        acceptance=accepted / total if total else math.nan,
-        correlation=correlation,
-        khat=khat,
-        log_evidence=log_evidence,
-        evaluations=evaluations,
-        seconds=time.perf_counter() - t0,
-        problems=stuck,
-        from_fallback=reference is fallback,
-        final_ess=final_ess,
-        importance_only=importance_only,
-        aux=aux,
-    )
+
+def _accept(pop, k, prop: _Proposal, lp_new, aux_new, rng, reference, local_accept) -> None:
+    """Population ``k``'s Metropolis-Hastings step on its proposals' log densities ``lp_new``
+    (or, at ``b = 1`` on the first move after resampling, the proposals kept as a certified
+    importance sample), the local step's scale adapted, and the verdict on its moves."""
+    N, d = prop.X.shape
+    Xp, log_ratio = prop.X, prop.log_ratio
+    lq_new = np.array(reference.log_density(Xp), float)
+    if prop.langevin is not None:
+        forward, chol, h = prop.langevin
+        drift = _tempered_gradient(pop.beta[k], aux_new[:, -d:], reference, Xp)
+        backward = Xp + _langevin_drift(drift, chol, h)
+        there = np.linalg.solve(chol, (Xp - forward).T)
+        back = np.linalg.solve(chol, (pop.X[k] - backward).T)
+        ratio = (np.sum(there**2, axis=0) - np.sum(back**2, axis=0)) / (2 * h * h)
+        log_ratio = np.where(np.isfinite(ratio), ratio, -np.inf)
+    if pop.beta[k] >= 1.0 and pop.moved[k] == 0 and prop.log_proposal is not None:
+        # The proposals as an importance sample of the posterior (module docstring).
+        log_w = np.where(np.isfinite(lp_new), lp_new - prop.log_proposal, -np.inf)
+        if _certified(log_w, N):
+            pop.take(k, _importance_resample(rng, log_w, N), Xp, lp_new, lq_new, aux_new)
+            pop.final_ess[k], pop.moves[k] = _ess(log_w), pop.moves[k] + 1
+            pop.correlation[k] = math.nan
+            pop.importance_only[k] = pop.finished[k] = True
+            return
+    b = pop.beta[k]
+    log_alpha = b * (lp_new - pop.lp[k]) + (1 - b) * (lq_new - pop.lq[k])
+    log_alpha = np.where(np.isfinite(lp_new), log_alpha + log_ratio, -np.inf)
+    take = np.log(rng.uniform(size=N)) < log_alpha
+    pop.X[k][take], pop.lp[k][take], pop.lq[k][take] = Xp[take], lp_new[take], lq_new[take]
+    pop.aux[k][take] = aux_new[take]
+    rate = float(np.mean(take))
+    pop.accepted, pop.total = pop.accepted + int(take.sum()), pop.total + N
+    if pop.moved[k] % 2 == 1:
+        pop.rw_scale[k] = float(np.clip(pop.rw_scale[k] * math.exp(rate - local_accept), 0.02, 5.0))
+    pop.moved[k] += 1
+    pop.moves[k] += 1
+    _judge_moves(pop, k)
+
+
+def _judge_moves(pop: _Populations, k: int) -> None:
+    """After a move: population ``k`` done with this stage once its positions decorrelated
+    from the last resampling's (or after the stage's most moves, said where the copies are
+    still stuck at b = 1); then the next reweighting, or the end at b = 1."""
+    pop.correlation[k] = _correlation(pop.anchor[k], pop.X[k])
+    final = pop.beta[k] >= 1.0
+    limit = DECORRELATION if final else STAGE_DECORRELATION
+    most = MAX_MOVES if final else MAX_STAGE_MOVES
+    if pop.correlation[k] < limit or pop.moved[k] >= most:
+        if pop.correlation[k] >= limit and final and _copies_stuck(pop.anchor[k], pop.X[k]):
+            ranked = _rank_correlation(pop.anchor[k], pop.X[k])
+            pop.stuck.append(
+                f"population {k + 1}: the moves left a correlation of "
+                f"{pop.correlation[k]:.2f} (of ranks: {ranked:.2f}) with their positions "
+                f"at the last resampling after {MAX_MOVES} moves (the copies it made "
+                "have not moved apart)"
+            )
+        if final:
+            pop.finished[k] = True
+        else:
+            pop.reweight[k] = True

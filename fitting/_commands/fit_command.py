@@ -7,7 +7,14 @@ import sys
 
 from .compare import _compared_models, _fit_compare
 from .fit_options import EXIT_NOT_CONVERGED, fit_parser
-from .fit_steps import _drawn, _fit_posterior, _fit_profile, _run_fit, _write_outputs
+from .fit_steps import (
+    _drawn,
+    _fit_posterior,
+    _fit_profile,
+    _prepare_posterior,
+    _run_fit,
+    _write_outputs,
+)
 from .words import EMBEDDED_DATA, _parse_init, _parse_priors, _swallowed, split_names
 
 __all__ = ["add_fit_command", "cmd_fit"]
@@ -52,6 +59,8 @@ def cmd_fit(args) -> int:
 
     scene_path, data_path, names, priors, scene, alternatives = _fit_inputs(args)
     progress = not args.no_progress
+    if args.posterior:  # the sampler's program compiles while the fit runs
+        _prepare_posterior(args, scene, data_path, names, priors)
     result = _run_fit(args, scene, data_path, names, _parse_init(args.init))
     print(f"scene: {describe_scene_source(scene_path)}")
     print(summary(result))

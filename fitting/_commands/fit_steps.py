@@ -53,6 +53,19 @@ def _run_fit(args, scene, data_path, names, initial):
     )  # fmt: skip
 
 
+def _prepare_posterior(args, scene, data_path, names, priors) -> None:
+    """``--posterior`` with SMC: its program compiled in a background thread while the fit
+    runs (``fitting._bayesian.posterior.prepare_posterior``)."""
+    if args.sampler not in ("smc", "auto"):
+        return
+    from .._bayesian.posterior import prepare_posterior
+
+    prepare_posterior(
+        scene, data_path, names, priors=priors, likelihood=args.likelihood, nu=args.nu,
+        draws=args.samples, noise=args.noise, moves=args.moves,
+    )  # fmt: skip
+
+
 def _sample(args, scene, names, priors, result):
     """The posterior after the fit ``result``, with the command's options."""
     from .._bayesian.posterior import sample_posterior

@@ -25,6 +25,7 @@ __all__ = [
     "code_fingerprint",
     "enable_compilation_cache",
     "enable_default_cache",
+    "lowered_program",
     "runtime_checks_as_nan",
 ]
 
@@ -236,8 +237,16 @@ def compiled_program(name: str, fn, args, key: str, options: dict | None = None)
     **Returns:** ``(compiled, source)``: ``source`` is ``"cache"`` (loaded traced) or
     ``"traced"``.
     """
+    lowered, source = lowered_program(name, fn, args, key)
+    return lowered.compile(options), source
+
+
+def lowered_program(name: str, fn, args, key: str):
+    """``fn`` lowered at the shapes of ``args`` (:func:`cached_program`), ready for
+    ``.compile(options)``; the compile, which releases Python's GIL, may then run in another
+    thread. **Returns:** ``(lowered, source)`` as :func:`compiled_program`."""
     program, source = cached_program(name, fn, args, key)
-    return program.lower(*args).compile(options), source
+    return program.lower(*args), source
 
 
 @contextlib.contextmanager
