@@ -18,8 +18,9 @@ import pytest
 import fitting
 import jaximpact
 from fitting import _design
-from fitting._bayesian import diagnostics, independence, programs, result
+from fitting._bayesian import diagnostics, independence, programs
 from fitting._bayesian import posterior as _posterior
+from fitting._bayesian import result as _result
 from fitting._bayesian.priors import Prior, parse_prior, priors_for
 from fitting._bayesian.report import add_to_result_dict
 from fitting._least_squares import profile as _profile
@@ -86,7 +87,7 @@ def test_sampler_recovers_linear_gaussian_posterior(toy_posterior):
     result, mean, cov = toy_posterior
     assert result.sampler == "smc" and "from a t on the least-squares fit" in result.reason
     assert "importance sample" in result.reason and result.evaluations == 4 * 1000
-    assert all(result.summary[n]["ess_tail"] >= result.MIN_ESS for n in NAMES)
+    assert all(result.summary[n]["ess_tail"] >= _result.MIN_ESS for n in NAMES)
     _check_gaussian_posterior(result, mean, cov)
 
 
@@ -204,14 +205,14 @@ def test_refusal_on_rhat_and_divergences():
     assert abs(diagnostics.split_rhat(good) - 1) < 0.01
     assert diagnostics.ess(good) == pytest.approx(4000, rel=0.15)
     stats = {"C_A": {"rhat": diagnostics.split_rhat(good)}}
-    assert result.judge(stats, 0) == []
-    assert "divergent" in result.judge(stats, 1)[0]
+    assert _result.judge(stats, 0) == []
+    assert "divergent" in _result.judge(stats, 1)[0]
     bad = good.copy()
     bad[0] += 1.0
     rhat = diagnostics.split_rhat(bad)
     assert 1.03 < rhat < 1.15
-    assert "R-hat of f0" in result.judge({"C_A": stats["C_A"], "f0": {"rhat": rhat}}, 0)[0]
-    assert result.judge({"C_A": {"rhat": math.nan}}, 0)
+    assert "R-hat of f0" in _result.judge({"C_A": stats["C_A"], "f0": {"rhat": rhat}}, 0)[0]
+    assert _result.judge({"C_A": {"rhat": math.nan}}, 0)
 
 
 @pytest.mark.slow  # a second sampler compilation
