@@ -168,92 +168,63 @@ def _sample_chains(
 
 
 def sample_posterior(
-    scene,
-    observations,
-    params: Sequence[str],
-    *,
-    priors: Mapping[str, object] | None = None,
-    likelihood: str = "gaussian",
-    nu: float = 4.0,
-    chains: int = 4,
-    draws: int = 1000,
-    warmup: int = WARMUP,
-    seed: int = 0,
-    fit_result: FitResult | None = None,
-    initial: Mapping[str, float] | None = None,
-    starts: int = 3,
-    jitter: float = 0.5,
-    target_accept: float = 0.9,
-    progress: bool = True,
-    method: str | None = None,
-    rtol: float | None = SAMPLING_RTOL,
-    sampler: str = "auto",
-    leave_out: Sequence[int] = (),
-    noise: str = "auto",
-    moves: str = "values",
-) -> PosteriorResult:
+    scene, observations, params: Sequence[str], *, priors: Mapping[str, object] | None = None,
+    likelihood: str = "gaussian", nu: float = 4.0, chains: int = 4, draws: int = 1000,
+    warmup: int = WARMUP, seed: int = 0, fit_result: FitResult | None = None,
+    initial: Mapping[str, float] | None = None, starts: int = 3, jitter: float = 0.5,
+    target_accept: float = 0.9, progress: bool = True, method: str | None = None,
+    rtol: float | None = SAMPLING_RTOL, sampler: str = "auto", leave_out: Sequence[int] = (),
+    noise: str = "auto", moves: str = "values",
+) -> PosteriorResult:  # fmt: skip
     """Sample the posterior of ``params`` given the observations.
 
     **Arguments:**
     - `scene`, `observations`, `params`, `initial`, `starts`, `method`: as for `fit`, which
-      runs first (unless `fit_result` is given) to place the chains.
+      runs first (unless `fit_result` is given) to place the sampler.
     - `priors`: ``{name: Prior or "loguniform:LO:HI" or "normal:MU:SD"}``; where not given,
       the scene's ``[priors]`` table, else log-uniform over
       :data:`fitting._priors.PRIOR_RANGES`.
     - `likelihood`: ``"gaussian"`` or ``"student-t"`` (with `nu` degrees of freedom).
-    - `chains` (>= 1; 4 or more for a trustworthy R-hat), `draws`, `warmup` (per chain).
-    - `seed`: jitter of the starts and the sampler's random stream.
-    - `jitter`: the chains start this many standard errors (least squares) from the optimum.
-    - `target_accept`: the step-size adaptation's target acceptance rate.
+    - `sampler`: ``"auto"`` (default) or ``"smc"``: tempered sequential Monte Carlo, from a t
+      on the fit where its importance weights show that it covers the posterior, else from
+      the prior (`chains` independent populations of `draws` particles); ``"independence"``
+      (right only where the posterior is nearly Gaussian) or ``"hmc"`` (module docstring).
+    - `chains` (4 or more for a trustworthy R-hat), `draws`, `warmup` (per chain); `seed`;
+      `jitter` (chains start this many standard errors from the optimum) and
+      `target_accept` (the step size's target acceptance): independence and HMC.
     - `progress`: progress bars on stderr.
-    - `sampler`: ``"auto"`` (default) or ``"smc"``: tempered sequential Monte Carlo
-      (``fitting._bayesian.smc``), from a t on the fit where its importance weights show
-      that it covers the posterior, else from the prior; ``"independence"`` (an independence
-      Metropolis sampler with a t proposal on the fit, right only where the posterior is
-      nearly Gaussian); ``"hmc"`` (see :data:`SAMPLERS` and the module docstring). With
-      SMC, `chains` is the number of independent populations and `draws` their particles.
     - `rtol`: solver tolerance of the sampler's evaluations (float64; atol ``rtol / 100``),
       where the scene leaves its own unset; None: the scene's (the fit's) tolerance.
-    - `noise`: how the noise factors of observables without sigmas enter (one of
-      :data:`NOISE_TREATMENTS`): ``"auto"`` (default) integrates them out in closed form
-      with the Gaussian likelihood (the sampler runs on `params` alone; each factor is then
-      drawn from its exact conditional at each draw) and samples them with the Student-t;
-      ``"integrated"`` or ``"sampled"`` forces one. ``result.noise_treatment`` says which ran.
-    - `moves` (SMC): ``"values"`` (default: an independence proposal alternating with a
-      random walk) or ``"mala"`` (the random walk replaced by MALA steps along the log
-      density's gradient, the simulator's forward-mode derivatives: a second compiled
-      program, each evaluation several times a value's cost; for curved posteriors).
-    - `leave_out`: indices (from 0, in the order of the fit's observations) of observations
-      whose likelihood terms are left out: the posterior without them, for exact
-      leave-one-out (``fitting.loo``). The rest is unchanged: the same compiled program (the
-      left-out rows are still simulated, with likelihood weight 0), and each noise factor is
-      still sampled (a group's only observation left out: its factor follows the prior).
+    - `noise` (:data:`NOISE_TREATMENTS`): ``"auto"`` integrates the noise factors of
+      observables without sigmas out in closed form with the Gaussian likelihood (each factor
+      then drawn from its exact conditional) and samples them with the Student-t;
+      ``"integrated"`` or ``"sampled"`` forces one (``result.noise_treatment`` says which).
+    - `moves` (SMC): ``"values"`` (an independence proposal alternating with a random walk)
+      or ``"mala"`` (MALA steps on the log density's forward-mode gradient instead of the
+      random walk: a second compiled program, several values' cost per evaluation).
+    - `leave_out`: indices (in the fit's order) of observations whose likelihood terms are
+      left out, for exact leave-one-out (``fitting.loo``): the same compiled program (the
+      rows are simulated with weight 0); a group's only observation left out: its noise
+      factor follows the prior.
 
     **Returns:** a `PosteriorResult`; check ``converged`` (R-hat, divergences).
 
     **Raises:** `FitError` for bad options, names or priors (and what `fit` raises).
     """
-    names = check_names(params)
-    _check_options(sampler, likelihood, nu, chains, draws, warmup)
-    if moves not in MOVES:
-        raise FitError(f"moves must be one of {', '.join(MOVES)}, got {moves!r}")
-    _integrates(noise, likelihood, ("any factor",))  # options checked before the fit
+    names = _checked(params, sampler, likelihood, nu, chains, draws, warmup, moves, noise)
     prior_map = priors_for(names, priors, scene.priors)
     fit_result, t_fit = _fit_first(
-        scene, observations, names, fit_result, initial, starts, progress, method,
-        dict(
+        scene, observations, names, fit_result, initial, starts, progress, method, dict(
             priors=priors, likelihood=likelihood, nu=nu, draws=draws, method=method, rtol=rtol,
             noise=noise, moves=moves,
         ) if sampler in ("smc", "auto") and not leave_out else None,
     )  # fmt: skip
     t_start = time.perf_counter() - t_fit  # a fit made before this call counts in the total
-    objective = fit_result.objective
-    theta = fit_result.theta
+    objective, theta = fit_result.objective, fit_result.theta
     if sampler in ("independence", "hmc"):  # SMC needs no start inside the prior
         _check_inside_priors(names, theta, prior_map)
     sampled = _at_tolerance(objective, rtol)
-    dpdu = dphys_du(names, theta)
-    cov_u = np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
+    cov_u = _u_covariance(names, fit_result)
     groups, noise_names = _noise_groups(objective)
     integrated = _integrates(noise, likelihood, noise_names)
     log_noise = _initial_log_noise(fit_result, groups, noise_names)
@@ -267,16 +238,31 @@ def sample_posterior(
         minima=_other_minima(fit_result), moves=moves,
         **_programs(sampler, sampled, names, prior_map, likelihood, nu, weight, integrated, moves),
     )  # fmt: skip
-    result.fit, result.left_out = fit_result, left_out
+    result.fit, result.left_out, result.noise_groups = fit_result, left_out, groups
     result.options = dict(
         likelihood=likelihood, nu=nu, chains=chains, draws=draws, warmup=warmup, seed=seed,
         jitter=jitter, target_accept=target_accept, rtol=rtol, sampler=sampler, noise=noise,
         moves=moves,
     )  # fmt: skip
     result.program, result.objective = _model_values(sampled, names), sampled
-    result.noise_groups = groups
     result.timings = {"fit": t_fit, **result.timings, "total": time.perf_counter() - t_start}
     return result
+
+
+def _checked(params, sampler, likelihood, nu, chains, draws, warmup, moves, noise):
+    """The parameter names, after every option is checked (before the fit runs)."""
+    names = check_names(params)
+    _check_options(sampler, likelihood, nu, chains, draws, warmup)
+    if moves not in MOVES:
+        raise FitError(f"moves must be one of {', '.join(MOVES)}, got {moves!r}")
+    _integrates(noise, likelihood, ("any factor",))
+    return names
+
+
+def _u_covariance(names, fit_result) -> np.ndarray:
+    """The fit's covariance carried into the solver variables ``u``."""
+    dpdu = dphys_du(names, fit_result.theta)
+    return np.asarray(fit_result.covariance) / np.outer(dpdu, dpdu)
 
 
 def _fit_first(scene, observations, names, fit_result, initial, starts, progress, method, prepare):

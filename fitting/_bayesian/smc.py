@@ -375,22 +375,13 @@ def run_smc(
         bar.set_postfix(b=f"{np.min(pop.beta):.3g}", refresh=False)
     bar.close()
     return SMCRun(
-        draws=pop.X,
-        log_density=pop.lp,
-        stages=pop.stages,
-        moves=pop.moves,
+        draws=pop.X, log_density=pop.lp, stages=pop.stages, moves=pop.moves,
         acceptance=pop.accepted / pop.total if pop.total else math.nan,
-        correlation=pop.correlation,
-        khat=pop.khat,
-        log_evidence=pop.log_evidence,
-        evaluations=counter[0],
-        seconds=time.perf_counter() - t0,
-        problems=pop.stuck,
-        from_fallback=reference is fallback,
-        final_ess=pop.final_ess,
-        importance_only=pop.importance_only,
-        aux=pop.aux,
-    )
+        correlation=pop.correlation, khat=pop.khat, log_evidence=pop.log_evidence,
+        evaluations=counter[0], seconds=time.perf_counter() - t0, problems=pop.stuck,
+        from_fallback=reference is fallback, final_ess=pop.final_ess,
+        importance_only=pop.importance_only, aux=pop.aux,
+    )  # fmt: skip
 
 
 @dataclass
