@@ -239,14 +239,15 @@ def test_bad_options_exit_2(args):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
 
-def test_readme_fit_data_examples_load(tmp_path):
-    """The two fit-data examples in README.md ("Fit data") are files fitting reads."""
+def test_fit_data_examples_of_the_guide_load(tmp_path):
+    """The two fit-data examples of the fitting guide (docs/fitting.md, "Fit data") are files
+    fitting reads."""
     import pathlib
 
     import fitting
 
-    readme = (pathlib.Path(__file__).parents[1] / "README.md").read_text()
-    section = readme.split("**Fit data**")[1].split("## Scene file reference")[0]
+    guide = (pathlib.Path(__file__).parents[1] / "docs" / "fitting.md").read_text()
+    section = guide.split("**Fit data**")[1].split("\n## ")[0]
     blocks = [b.split("```", 1)[0] for b in section.split("```\n")[1::2]]
     assert len(blocks) == 2
     for k, text in enumerate(blocks):
