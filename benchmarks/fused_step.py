@@ -26,6 +26,8 @@ sign (the event itself is not located: the variants time the stepping):
 ns per lane-step = time / (lanes x the chunk's largest step count); *same steps*: the share of
 impacts whose step count is the engine's (the variants' arithmetic is the same, the fusion of
 it by XLA, and so the last bits, can differ).
+
+Duration: not recorded (six variants of one chunk compiled and timed in one process).
 """
 
 import argparse

@@ -13,6 +13,8 @@ bisection in float64): expected are zero float32 failures, and equal statuses ex
 0.5 % of the capture speed. Prints markdown. ``--compare-loops``: the float32 rate of the
 default (lanes refilled as impacts finish) against the same step loop without refill (a fixed
 number of lanes at a time) on 100,000 of these impacts.
+
+Duration: about 2 minutes on 2 cores (the million impacts: 66 s of simulating).
 """
 
 import argparse

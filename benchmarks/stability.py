@@ -4,6 +4,8 @@ Each case reports the status, the error against the exact reference (where the r
 run it), the solver picked by ``method="auto"``, the steps and the time (first call, which
 includes compilation, and a second call). The explicit solver is also forced on the stiff
 cases: it must rebound or end with a clear ``max_steps`` status, never NaN.
+
+Duration: part of ``run_all.py``'s 20 minutes on 2 cores (``run_all.py --only stability``).
 """
 
 import math

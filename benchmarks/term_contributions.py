@@ -16,6 +16,8 @@ terms out buys in impacts/s (``throughput.py``'s normal-impact configurations):
 ``python benchmarks/term_contributions.py [--update BENCHMARKS.md]`` (``--update`` replaces
 only the "What a scene can leave out" section of that file). Also a section of ``run_all.py``
 (``terms``), which takes the impacts/s from its ``throughput`` section when both run.
+
+Duration: not recorded; part of ``run_all.py``'s 20 minutes with ``--only terms``.
 """
 
 import math

@@ -10,6 +10,8 @@ ledger's largest residual; then the warm run time of a batch of oblique spinning
 the Thornton-Ning law against the same batch with JKR (medians of 5, one process, the API's
 default program), with the mean steps per impact; then ``w`` and ``p_y`` fitted to synthetic
 rebounds with known answers.
+
+Duration: not recorded (four limiting pressures, a timed batch, two small fits).
 """
 
 from __future__ import annotations

@@ -37,6 +37,8 @@ Restitution from exact energy balance along the branches (the force is a
 single-valued function of delta on each branch, so this equals a time
 integration); `ode_check` integrates m x'' = -P(x) with solve_ivp as a check.
 Run:  python oracle.py
+
+Duration: seconds (numpy and scipy only).
 """
 
 import warnings

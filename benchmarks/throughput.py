@@ -20,6 +20,8 @@ Impacts: the full oblique spinning Table 1 scene (0.5-5 m/s, -60..60 deg, |omega
 rad/s) and normal impacts without spin (same speeds), which ``required_terms`` integrates
 with the normal states only. Timings are medians of repeated calls after the first (compiling)
 call; compile time = first call minus the median.
+
+Duration: not recorded for each part; ``run`` is part of ``run_all.py``'s 20 minutes.
 """
 
 import argparse

@@ -10,6 +10,8 @@ Errors: ``|d cor_n|``, ``|d vt_out|/speed``, ``|d omega_out| r/speed`` (rebounds
 relative contact time; "max" is the largest over the four outputs and the held-out impacts.
 Run time: median of repeated runs of the whole held-out batch (one vmapped call, after
 compilation), divided by the number of impacts.
+
+Duration: part of ``run_all.py``'s 20 minutes on 2 cores (``run_all.py --only work_precision``).
 """
 
 import time
