@@ -19,26 +19,16 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 
 from jaximpact._model.ranges import RANGES
+from jaximpact.parameters import FITTABLE, PARAMETERS
 
 from .._least_squares.objective import FitError
 from .._least_squares.transforms import BOUNDS
 
 __all__ = ["PRIOR_KINDS", "PRIOR_RANGES", "Prior", "default_prior", "parse_prior", "priors_for"]
 
-#: Default prior ranges (SI): log-uniform between these values.
-PRIOR_RANGES = {
-    "C_A": (1e-3, 1e2),  # s/m
-    "C_H": (1e-3, 1e2),  # s/m
-    "f0": (1e-1, 1e5),  # N/m
-    "friction": (1e-3, 1.5),
-    "K": (1e8, 1e13),  # Pa
-    "G_star": (1e6, 1e12),  # Pa (model.tangential = "mindlin")
-    "w": (1e-4, 1e2),  # J/m^2 (model.normal = "dmt", "jkr", "thornton_ning")
-    "p_y": (1e7, 1e11),  # Pa (model.normal = "thornton_ning"; metals' 0.1-10 GPa inside)
-    "lambda": (1e-3, 1e2),
-    "radius": (1e-7, 1e-1),  # m
-    "density": (1e2, 3e4),  # kg/m^3
-}
+#: Default prior ranges (SI): log-uniform between these values (the parameter registry's
+#: ``default_prior``, ``jaximpact.parameters``, where each range's unit and use are given).
+PRIOR_RANGES = {n: PARAMETERS[n].default_prior for n in FITTABLE}
 
 PRIOR_KINDS = ("loguniform", "normal")
 
