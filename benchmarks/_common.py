@@ -5,6 +5,7 @@ import os
 import platform
 import re
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -103,6 +104,34 @@ def median_time(fn, repeats=3):
     return float(np.median(times))
 
 
+def interleaved_timings(fns, repeats):
+    """Warm-up and repeats of several computations side by side: ``fns`` is ``{name: fn}``,
+    each ``fn()`` blocking until its result is ready. A first call of each in turn (compiling),
+    then ``repeats`` rounds that call each once in turn (a shared machine's load moves all
+    alike). Returns ``{name: {"result", "first", "times", "median", "compile"}}``: the first
+    call's result and seconds, the repeats' seconds and their median, and ``compile``, the
+    first call less the median (at least 0)."""
+    out = {}
+    for name, fn in fns.items():
+        t = time.perf_counter()
+        result = fn()
+        out[name] = {"result": result, "first": time.perf_counter() - t, "times": []}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            out[name]["times"].append(time.perf_counter() - t)
+    for r in out.values():
+        r["median"] = float(np.median(r["times"])) if r["times"] else float("nan")
+        r["compile"] = max(r["first"] - r["median"], 0.0) if r["times"] else r["first"]
+    return out
+
+
+def load_average():
+    """The 1-, 5- and 15-minute load averages as text, e.g. ``"1.4 1.7 1.5"``."""
+    return " ".join(f"{x:.1f}" for x in os.getloadavg())
+
+
 def machine():
     """CPU model, core count, memory, versions."""
     import diffrax
@@ -161,7 +190,7 @@ def machine():
         "numpy": np.__version__,
         "scipy": scipy.__version__,
         "commit": commit,
-        "load": " ".join(f"{x:.1f}" for x in os.getloadavg()),
+        "load": load_average(),
     }
 
 
@@ -179,6 +208,55 @@ def write_atomic(path: Path, data: bytes | str):
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def results_dir():
+    """Where benchmarks write their result files: ``benchmarks/results/``, or the folder in
+    ``JAXIMPACT_BENCHMARK_RESULTS`` (``python -m benchmarks NAME --quick`` sets it to a
+    temporary folder, so that a smoke run never replaces a committed result)."""
+    return Path(os.environ.get("JAXIMPACT_BENCHMARK_RESULTS") or ROOT / "benchmarks" / "results")
+
+
+def plain(x):
+    """``x`` as JSON can hold it: numpy arrays and numbers as lists and Python numbers, tuples
+    as lists, dict keys as text (a tuple key joined by " / "), anything else as its text."""
+    if isinstance(x, dict):
+        return {
+            (" / ".join(map(str, k)) if isinstance(k, tuple) else str(k)): plain(v)
+            for k, v in x.items()
+        }
+    if isinstance(x, list | tuple):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return plain(x.tolist())
+    if isinstance(x, np.bool_ | bool):
+        return bool(x)
+    if isinstance(x, np.integer | int):
+        return int(x)
+    if isinstance(x, np.floating | float):
+        return float(x)
+    if x is None or isinstance(x, str):
+        return x
+    return str(x)
+
+
+def write_result(name, figures, info, command=None):
+    """Write ``results_dir()/NAME.json``: ``{"benchmark", "command", "info", "figures"}``, with
+    ``info`` the :func:`machine` description (date, CPU, cores, load, versions, commit) taken
+    at the run's start and ``figures`` the measured numbers (made plain by :func:`plain`).
+    Returns the path, or None (with a message) when it could not be written: a benchmark's
+    printed output is never lost to its result file."""
+    import json
+
+    data = {"benchmark": name, "command": command, "info": info, "figures": figures}
+    path = results_dir() / f"{name}.json"
+    try:
+        write_atomic(path, json.dumps(plain(data), indent=1) + "\n")
+    except (OSError, TypeError, ValueError) as e:
+        print(f"[{name}] result file not written: {e}", file=sys.stderr, flush=True)
+        return None
+    print(f"[{name}] figures written to {path}", file=sys.stderr, flush=True)
+    return path
 
 
 def save_figure(fig, name):

@@ -24,7 +24,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import machine, measured_line, table  # noqa: E402
+from _common import machine, measured_line, table, write_result  # noqa: E402
 
 COMMAND = "python benchmarks/first_result.py"
 
@@ -236,6 +236,9 @@ def main():
     finally:
         shutil.rmtree(work, ignore_errors=True)
     print(report(results, info, COMMAND))
+    rows = [{"entry point": name, "cache": phase, "target s": TARGETS.get(name), **r}
+            for (name, phase), r in results.items()]  # fmt: skip
+    write_result("first_result", rows, info, COMMAND)
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import machine, measured_line, replace_section, table  # noqa: E402
+from _common import machine, measured_line, replace_section, table, write_result  # noqa: E402
 
 TRUTH = {"C_A": 0.75, "C_H": 0.25, "f0": 300.0}
 INIT = {"C_A": 1.5, "C_H": 0.15, "f0": 500.0}
@@ -193,6 +193,7 @@ def main():
     text = report(res, info, command, args.note)
     print(text)
     print(json.dumps({k: v for k, v in res.items() if k != "json"}, indent=1), file=sys.stderr)
+    write_result("fit_benchmark", {k: v for k, v in res.items() if k != "json"}, info, command)
     if args.update:
         replace_section(Path(args.update), text)
         print(f"replaced the section {TITLE!r} of {args.update}", file=sys.stderr)

@@ -30,7 +30,6 @@ transposes; no ``adjoint`` argument is involved.
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -42,7 +41,14 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _common import machine, measured_line, replace_section, table  # noqa: E402
+from _common import (  # noqa: E402
+    interleaved_timings,
+    machine,
+    measured_line,
+    replace_section,
+    table,
+    write_result,
+)
 
 import jaximpact as ji  # noqa: E402
 
@@ -110,21 +116,9 @@ def timed(fns, x, repeats):
     """{name: (compile s, median run s, result)} of each ``fns[name](x)``: a first call each,
     then the repeats interleaved (a shared machine's load moves all alike); compile: the first
     call less the median."""
-    first, outs, times = {}, {}, {name: [] for name in fns}
-    for name, fn in fns.items():
-        t = time.perf_counter()
-        outs[name] = jax.block_until_ready(fn(x))
-        first[name] = time.perf_counter() - t
-    for _ in range(repeats):
-        for name, fn in fns.items():
-            t = time.perf_counter()
-            jax.block_until_ready(fn(x))
-            times[name].append(time.perf_counter() - t)
-    out = {}
-    for name in fns:
-        run = float(np.median(times[name]))
-        out[name] = (max(first[name] - run, 0.0), run, outs[name])
-    return out
+    calls = {name: (lambda fn=fn: jax.block_until_ready(fn(x))) for name, fn in fns.items()}
+    runs = interleaved_timings(calls, repeats)
+    return {name: (r["compile"], r["median"], r["result"]) for name, r in runs.items()}
 
 
 def measure(sets=(1, 16, 64), params=(1, 2, 3), repeats=5, rtol=None, vmap=False, log=None):
@@ -306,6 +300,7 @@ def main():
         command += " --vmap"
     text = report(data, info, command, args.note)
     print(text)
+    write_result("gradient_cost", data, info, command)
     if args.update:
         replace_section(Path(args.update), text)
         print(f"replaced the section {TITLE!r} of {args.update}", file=sys.stderr)

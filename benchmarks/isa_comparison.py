@@ -27,7 +27,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import machine  # noqa: E402
+from _common import load_average, machine, write_result  # noqa: E402
 
 WORKER = """
 import json, sys, time
@@ -79,8 +79,9 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=2, help="alternating rounds of every case")
     ap.add_argument("--precisions", nargs="+", default=["float64", "float32"])
     args = ap.parse_args(argv)
-    print(machine())
-    print(f"load average at the start: {os.getloadavg()}")
+    info = machine()
+    print(info)
+    print(f"load average at the start: {load_average()}")
     runs = {}
     for _ in range(args.rounds):
         for precision in args.precisions:
@@ -88,10 +89,11 @@ def main(argv=None):
                 r = run_case(isa, args.n, args.repeats, precision)
                 runs.setdefault((precision, isa), []).append(r)
                 print(precision, isa, json.dumps(r), flush=True)
-    print(f"load average at the end: {os.getloadavg()}")
+    print(f"load average at the end: {load_average()}")
     print()
     print("| precision | instruction set | impacts/s (median) | ratio to default | first call s |")
     print("|---|---|---|---|---|")
+    rows = []
     for precision in args.precisions:
         base = None
         for isa in ISAS:
@@ -100,6 +102,11 @@ def main(argv=None):
             first = statistics.median(r["first"] for r in rs)
             base = base or rate
             print(f"| {precision} | {isa} | {rate:,.0f} | {rate / base:.2f} | {first:.1f} |")
+            rows.append(dict(precision=precision, isa=isa, rate=rate, ratio=rate / base,
+                             first=first, runs=rs))  # fmt: skip
+    command = f"python benchmarks/isa_comparison.py --n {args.n} --rounds {args.rounds}"
+    write_result("isa_comparison", {"n": args.n, "repeats": args.repeats, "rows": rows}, info,
+                 command)  # fmt: skip
     return 0
 
 

@@ -53,7 +53,7 @@ def scene_of(ji):
 
 def worker(cfg):
     """In the subprocess: time ``simulate`` (and the plain peer), print one JSON line."""
-    import time
+    from _common import interleaved_timings
 
     import jaximpact as ji
 
@@ -69,20 +69,11 @@ def worker(cfg):
     calls = {"default": {}}
     if cfg["mode"] == "one":
         calls["plain"] = dict(chunk=0, loop="diffrax")
-    runs = {}
-    for name, kw in calls.items():
-
-        def call(kw=kw):
-            return jax.block_until_ready(_simulate(scene, speed, angle, omega0, **kw))
-
-        t = time.perf_counter()
-        res = call()
-        runs[name] = dict(call=call, first=time.perf_counter() - t, times=[], res=res)
-    for _ in range(cfg["repeats"]):
-        for r in runs.values():
-            t = time.perf_counter()
-            r["call"]()
-            r["times"].append(time.perf_counter() - t)
+    fns = {
+        name: (lambda kw=kw: jax.block_until_ready(_simulate(scene, speed, angle, omega0, **kw)))
+        for name, kw in calls.items()
+    }
+    runs = interleaved_timings(fns, cfg["repeats"])  # first calls, then repeats in turn
     kernels = None
     if cfg["mode"] == "kernels":  # is the step loop one kernel in the compiled program?
         from jaximpact._engine.devices import compiler_options
@@ -94,8 +85,8 @@ def worker(cfg):
         text = program.lower(speed, angle, omega0).compile().as_text()
         kernels = text.count('xla_cpu_small_call="true"')
     for name, r in runs.items():
-        run = float(np.median(r["times"]))
-        res = r["res"]
+        run = r["median"]
+        res = r["result"]
         out = dict(
             mode=cfg["mode"],
             x64=cfg["x64"],
@@ -239,11 +230,14 @@ def main():
     args = ap.parse_args()
     if args.worker:
         return worker(json.loads(args.worker))
-    from _common import machine, replace_section
+    from _common import machine, replace_section, write_result
 
     info = machine()
-    md = report(measure(args.n, args.repeats), args.n, args.repeats, info)
+    results = measure(args.n, args.repeats)
+    md = report(results, args.n, args.repeats, info)
     print(md)
+    figures = {"n": args.n, "repeats": args.repeats, "configurations": results}
+    write_result("loop_kernels", figures, info, f"python benchmarks/loop_kernels.py --n {args.n}")
     if args.update:
         replace_section(args.update, md)
         print(f"replaced the section {TITLE!r} of {args.update}")

@@ -45,7 +45,7 @@ import stability  # noqa: E402
 import term_contributions  # noqa: E402
 import throughput  # noqa: E402
 import work_precision  # noqa: E402
-from _common import ROOT, machine, replace_section  # noqa: E402
+from _common import ROOT, machine, replace_section, write_result  # noqa: E402
 from summary import at_a_glance  # noqa: E402
 
 # name -> the section writer: (quick, info, note, command, data of the sections run before)
@@ -79,6 +79,8 @@ def main():
     if not output:
         _common.FIGURES = Path(tempfile.mkdtemp(prefix="benchmark-figures-"))
         print(f"[run_all] figures go to {_common.FIGURES}", file=sys.stderr)
+        if not os.environ.get("JAXIMPACT_BENCHMARK_RESULTS"):  # nor the result files
+            os.environ["JAXIMPACT_BENCHMARK_RESULTS"] = str(_common.FIGURES)
     data = {}
     for name, writer in SECTIONS.items():
         if args.only and name not in args.only:
@@ -91,8 +93,10 @@ def main():
             file=sys.stderr,
             flush=True,
         )
-        text, data[name] = writer(args.quick, machine(), args.note, command, data)
+        info = machine()
+        text, data[name] = writer(args.quick, info, args.note, command, data)
         seconds = time.perf_counter() - t
+        write_result(f"run_all_{name}", data[name], info, command)
         if output:
             replace_section(Path(output), text)
             print(

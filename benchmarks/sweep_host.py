@@ -23,7 +23,6 @@ result column (``jaximpact._io.tables.RESULT_COLUMNS``).
 """
 
 import argparse
-import os
 import shutil
 import statistics
 import sys
@@ -44,7 +43,7 @@ import numpy as np  # noqa: E402
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import machine, measured_line, table  # noqa: E402
+from _common import load_average, machine, measured_line, table  # noqa: E402
 
 from jaximpact._engine.results import OUTPUT_FIELDS  # noqa: E402
 from jaximpact._io.tables import RESULT_COLUMNS  # noqa: E402
@@ -273,7 +272,7 @@ def main():
     lines.append(table(["compression", "chunk", "writer threads", "M rows/s",
                         "bytes/row on disk"], rows))  # fmt: skip
     print("\n".join(lines))
-    print(f"load average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+    print(f"load average at the end: {load_average()}")
 
 
 if __name__ == "__main__":

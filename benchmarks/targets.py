@@ -35,12 +35,20 @@ def load_targets(path=TARGETS):
 
 
 def lookup(data, path):
-    """The values at ``path`` (keys joined by ".", "*" for every item of a list) in ``data``."""
+    """The values at ``path`` in ``data``: keys joined by ".", "*" for every item of a list or
+    dict, a number for one item of a list, ``[key=value,key=value]`` for the items of a list
+    of dicts whose fields have those values (as text), e.g.
+    ``figures.[entry point=simulate 3,cache=cold].wall``."""
     values = [data]
-    for key in path.split("."):
+    for key in re.findall(r"\[[^\]]*\]|[^.]+", path):
         nxt = []
         for v in values:
-            if key == "*":
+            if key.startswith("["):
+                want = dict(kv.split("=", 1) for kv in key[1:-1].split(","))
+                nxt.extend(
+                    item for item in v if all(str(item.get(k)) == x for k, x in want.items())
+                )
+            elif key == "*":
                 nxt.extend(v.values() if isinstance(v, dict) else v)
             elif isinstance(v, list):
                 nxt.append(v[int(key)])

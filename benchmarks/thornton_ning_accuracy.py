@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import platform
 import time
 
 import jax
@@ -28,6 +26,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _common import interleaved_timings, machine  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 from jaximpact.reference import thornton_ning as tn  # noqa: E402
@@ -76,16 +75,14 @@ def timing(n, repeats=5):
     out = {}
     for law in ("jkr", "thornton_ning"):
         s = scene(law, C_H=0.1)
-        t0 = time.perf_counter()
-        res = ji.simulate(s, speeds, angles, omega0)
-        res.cor_n.block_until_ready()
-        first = time.perf_counter() - t0
-        runs = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            ji.simulate(s, speeds, angles, omega0).cor_n.block_until_ready()
-            runs.append(time.perf_counter() - t0)
-        out[law] = (first, float(np.median(runs)), float(np.mean(np.asarray(res.steps))))
+
+        def call(s=s):
+            res = ji.simulate(s, speeds, angles, omega0)
+            res.cor_n.block_until_ready()
+            return res
+
+        r = interleaved_timings({law: call}, repeats)[law]  # a first call, then the repeats
+        out[law] = (r["first"], r["median"], float(np.mean(np.asarray(r["result"].steps))))
     return out
 
 
@@ -121,10 +118,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--impacts", type=int, default=2000, help="impacts in the timed batch")
     args = parser.parse_args()
-    print(
-        f"{time.strftime('%Y-%m-%d %H:%M')}, {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} cores, load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}"
-    )
+    info = machine()
+    print(f"{info['date']}, {info['cpu']}, {info['cores']} cores, load average {info['load']}")
     speeds = np.geomspace(0.05, 100.0, 25)
     print("| p_y (Pa) | impacts (captured) | status differences | cor_n | max_overlap (rel) |"
           " contact_time (rel) | ledger (of energy in) |")  # fmt: skip

@@ -29,14 +29,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
-from _common import machine  # noqa: E402
+from _common import machine, results_dir  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 from jaximpact.wall_law import wall_law  # noqa: E402
@@ -194,7 +193,7 @@ def main() -> None:
         e = r["errors"]
         cols = " | ".join(f"{e[o]['max']:.1e} ({e[o]['p99']:.1e})" for o in OUTPUTS)
         print(f"| {r['table']} | {r['angles']} | {r['speeds']} | {cols} |")
-    out = Path(__file__).resolve().parent / "results" / "wall_law_kink.json"
+    out = results_dir() / "wall_law_kink.json"
     print(
         "\n| radius um | rebounding cells | speed ratios with 0 / 1 / 2+ changes | theta* (deg) "
         "| 0 changes, rolls at every angle |"

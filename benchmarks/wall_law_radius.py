@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import machine, measured_line, write_atomic  # noqa: E402
+from _common import machine, measured_line, results_dir, write_atomic  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 
@@ -137,7 +137,7 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="default results/wall_law_radius[_aligned].json")
     args = ap.parse_args()
     name = "wall_law_radius.json" if args.layout == "grid" else "wall_law_radius_aligned.json"
-    args.out = args.out or str(HERE / "results" / name)
+    args.out = args.out or str(results_dir() / name)
     info = machine()
     scene = ji.table1_scene()
     angles = None

@@ -135,6 +135,10 @@ def test_targets_rows_from_a_result_file(tmp_path):
     r = targets.row(e, results=tmp_path)
     assert (r["measured"], r["met"]) == ("31.5 s", "no")
     assert (r["cpu"], r["date"]) == ("Intel Xeon (AVX-512), 2 cores", "2026-12-01")
+    rows = {"figures": [{"case": "a b", "cache": "cold", "s": 1.0},
+                        {"case": "a b", "cache": "warm", "s": 2.0}]}  # fmt: skip
+    assert targets.lookup(rows, "figures.[case=a b,cache=warm].s") == [2.0]
+    assert targets.lookup(rows, "figures.*.s") == [1.0, 2.0]
     assert targets.anchor("Posterior with SMC, end to end") == "#posterior-with-smc-end-to-end"
     assert targets.anchor("Compared with a scipy `solve_ivp` loop") == (
         "#compared-with-a-scipy-solve_ivp-loop"
