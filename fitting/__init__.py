@@ -26,6 +26,7 @@ _EXPORTS = {
     "refit_without": "._bayesian.loo",
     "PosteriorResult": "._bayesian.posterior",
     "posterior_predictive": "._bayesian.posterior",
+    "prepare_posterior": "._bayesian.posterior",
     "sample_posterior": "._bayesian.posterior",
     "PRIOR_RANGES": "._bayesian.priors",
     "Prior": "._bayesian.priors",

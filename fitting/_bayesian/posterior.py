@@ -72,7 +72,14 @@ from .result import MAX_RHAT, PosteriorResult, _judged_quantities, _posterior_re
 from .smc_posterior import _attach_noise, _describe_noise, _sample_smc
 from .space import SamplingSpace
 
-__all__ = ["LIKELIHOODS", "MAX_RHAT", "NOISE_TREATMENTS", "PosteriorResult", "sample_posterior"]
+__all__ = [
+    "LIKELIHOODS",
+    "MAX_RHAT",
+    "NOISE_TREATMENTS",
+    "PosteriorResult",
+    "prepare_posterior",
+    "sample_posterior",
+]
 
 
 #: Samplers: ``auto`` (= ``smc``, or ``hmc`` when the chains' starts are given), ``smc``,
