@@ -237,6 +237,8 @@ def plain(x):
         return float(x)
     if x is None or isinstance(x, str):
         return x
+    if hasattr(x, "__array__"):  # a jax array
+        return plain(np.asarray(x))
     return str(x)
 
 

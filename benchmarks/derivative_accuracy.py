@@ -86,6 +86,13 @@ def main(default_only=False):
             f"| {r[0]:.0e} | {r[1]:.0e} | {r[8]} | {r[2]:.1e} | {r[3]:.1e} | {r[4]} of {r[5]} "
             f"| {r[6]:.0f} | {r[7]:.1f} |"
         )
+    from _common import write_result
+
+    keys = ("rtol", "slip_width", "max_error", "median_error", "above_1e-3", "derivatives",
+            "median_steps", "jacfwd_seconds", "program")  # fmt: skip
+    figures = [dict(zip(keys, r, strict=True)) for r in rows]
+    write_result("derivative_accuracy" + ("_default" if default_only else ""), figures, info,
+                 command)  # fmt: skip
 
 
 if __name__ == "__main__":

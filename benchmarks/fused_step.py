@@ -233,6 +233,13 @@ def measure(lanes=8192, repeats=5):
             rows,
         ),
     ]
+    from _common import write_result
+
+    keys = ("variant", "ns per lane-step", "speed-up", "run (s)", "steps max", "same steps")
+    figures = {"lanes": lanes, "repeats": repeats,
+               "rows": [dict(zip(keys, r, strict=True)) for r in rows],
+               "seconds": {v: results[v]["seconds"] for v in VARIANTS}}  # fmt: skip
+    write_result("fused_step", figures, info, "python benchmarks/fused_step.py")
     return "\n".join(md)
 
 

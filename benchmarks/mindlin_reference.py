@@ -30,7 +30,7 @@ import jaximpact as ji  # noqa: E402
 from jaximpact import reference as ref  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import machine, measured_line, table  # noqa: E402
+from _common import machine, measured_line, table, write_result  # noqa: E402
 
 #: Kharaz et al. (2001): alumina, E = 380 GPa, nu = 0.23, on a rigid anvil.
 G_ALUMINA = 380e9 / (2 * 1.23) / (2 - 0.23)
@@ -95,6 +95,16 @@ def main():
     print(table(["output / speed", "median error", "largest error"], rows))
     print(f"\nsteps: mean {steps.mean():.0f}, largest {steps.max()}; worst impact: "
           + ", ".join(f"{k} {v[worst]:.3g}" for k, v in pts.items()))  # fmt: skip
+    figures = {
+        "settings": settings,
+        "median_error": {k: float(np.median(e)) for k, e in err.items()},
+        "largest_error": {k: float(np.max(e)) for k, e in err.items()},
+        "steps_mean": float(steps.mean()),
+        "steps_max": int(steps.max()),
+        "worst_impact": {k: float(v[worst]) for k, v in pts.items()},
+    }
+    name = "mindlin_reference" + ("_target" if args.target else "")
+    write_result(name, figures, info, "python benchmarks/mindlin_reference.py")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ import time
 
 import jax
 import numpy as np
-from _common import default_settings, machine, measured_line
+from _common import default_settings, machine, measured_line, write_result
 
 jax.config.update("jax_enable_x64", True)
 
@@ -116,6 +116,21 @@ def main(n, block):
         print("| speed (m/s) | angle (deg) | omega0 (rad/s) | float64 | float32 | from v_c |")
         print("|---|---|---|---|---|---|")
         print("\n".join(rows))
+    precision = {True: "float64", False: "float32"}
+    figures = {
+        "n": n,
+        "block": block,
+        "seconds": {precision[k]: v for k, v in seconds.items()},
+        "failed": {precision[k]: v for k, v in failed.items()},
+        "rebounds": {precision[k]: v for k, v in rebounds.items()},
+        "steps_median": {precision[k]: float(np.median(v)) for k, v in steps.items()},
+        "steps_max": {precision[k]: int(v.max()) for k, v in steps.items()},
+        "slowest_lane_factor": {precision[k]: v for k, v in factor.items()},
+        "statuses_differ": int(differ.size),
+        "within_0.5%_of_capture": int(within),
+        "differing_rows": rows,
+    }
+    write_result("near_capture_band", figures, info, command)
 
 
 def compare_loops(n, repeats=3):

@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import machine, measured_line, table  # noqa: E402
+from _common import machine, measured_line, table, write_result  # noqa: E402
 
 from fitting._bayesian import posterior as _posterior  # noqa: E402
 from fitting._bayesian.likelihood import NOISE_FACTOR_RANGE  # noqa: E402
@@ -104,6 +104,18 @@ def main():
     )
     print()
     print(table(["quantity", "chi-square p (10 bins)", "mean share below truth"], rows))
+    figures = {
+        "replications": args.replications,
+        "noise": args.noise,
+        "seconds": seconds,
+        "converged": converged,
+        "evaluations_median": int(np.median(evaluations)),
+        "rows": [dict(zip(["quantity", "chi-square p", "mean share below truth"], r, strict=True))
+                 for r in rows],
+        "shares_below_truth": shares,
+    }  # fmt: skip
+    write_result(f"noise_sbc_{args.noise}", figures, info,
+                 f"{COMMAND} --replications {args.replications} --noise {args.noise}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -132,7 +132,7 @@ def main():
     ap.add_argument("--cache", help="pickle the reference results here and reuse them")
     args = ap.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from _common import machine, measured_line
+    from _common import machine, measured_line, write_result
 
     info = machine()
     cases = scenes(np.random.default_rng(args.seed))
@@ -148,6 +148,7 @@ def main():
     print("| slip_width | moments | values max | derivatives max | median | > 1e-3 "
           "| max, row-scaled | median steps |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|")
+    figures = []
     for width in (float(w) for w in args.widths.split(",")):
         for kind, e in sorted(errors(cases, exact, width).items()):
             d = np.array(e["deriv"])
@@ -158,6 +159,14 @@ def main():
                 f"{max(e['row']):.1e} | {np.median(e['steps']):.0f} |",
                 flush=True,
             )
+            figures.append(dict(slip_width=width, default=width == default, moments=kind,
+                                values_max=max(e["value"]), derivatives_max=float(d.max()),
+                                derivatives_median=float(np.median(d)),
+                                above_1e3=int((d > 1e-3).sum()), derivatives=int(d.size),
+                                row_scaled_max=max(e["row"]),
+                                median_steps=float(np.median(e["steps"]))))  # fmt: skip
+    write_result("rolling_derivatives", figures, info,
+                 f"python benchmarks/rolling_derivatives.py --widths {args.widths}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import load_average, machine, measured_line, table  # noqa: E402
+from _common import load_average, machine, measured_line, table, write_result  # noqa: E402
 
 from jaximpact._engine.results import OUTPUT_FIELDS  # noqa: E402
 from jaximpact._io.tables import RESULT_COLUMNS  # noqa: E402
@@ -273,6 +273,7 @@ def main():
                         "bytes/row on disk"], rows))  # fmt: skip
     print("\n".join(lines))
     print(f"load average at the end: {load_average()}")
+    write_result("sweep_host", {"markdown": "\n".join(lines)}, info, COMMAND)
 
 
 if __name__ == "__main__":

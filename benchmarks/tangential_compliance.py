@@ -92,6 +92,9 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--before", help="directory holding jaximpact/ of the commit before")
     args = parser.parse_args()
+    from _common import machine, write_result
+
+    info = machine()
     obs = fitting.load_kharaz2001()
     rows = []
     for scene_name, params in (("kharaz2001", ["friction"]), ("kharaz2001_mindlin",
@@ -108,11 +111,20 @@ def main():
             f"| {name} ({status}) | {fitted} | {rms['cor_t']:.4f} | "
             f"{rms['rebound_angle_deg']:.3f} | {rms['omega_out']:.1f} |"
         )
-    for name, (seconds, steps) in cost().items():
+    costs = cost()
+    for name, (seconds, steps) in costs.items():
         print(f"{name}: 200 impacts warm, median of 7: {seconds:.3f} s; mean steps {steps:.0f}")
+    figures = {
+        "fits": [dict(scene=n, status=s, values=v, rms=r) for n, s, v, r in rows],
+        "cost": {n: {"seconds": s, "mean_steps": st} for n, (s, st) in costs.items()},
+    }
     if args.before:
         same, steps = rigid_unchanged(args.before)
         print(f"rigid scenes bitwise unchanged against {args.before}: {same}; steps {steps}")
+        figures["rigid_unchanged"] = {"same": same, "steps": steps}
+    write_result(
+        "tangential_compliance", figures, info, "python benchmarks/tangential_compliance.py"
+    )
 
 
 if __name__ == "__main__":

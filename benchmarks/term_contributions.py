@@ -202,7 +202,7 @@ if __name__ == "__main__":
 
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from _common import replace_section
+    from _common import machine, replace_section, write_result
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -212,8 +212,10 @@ if __name__ == "__main__":
     )
     ap.add_argument("--note", help="a sentence about the run for the measured line")
     args = ap.parse_args()
-    text = run(note=args.note)[0]
+    info = machine()
+    text, rows = run(info=info, note=args.note)
     print(text)
+    write_result("term_contributions", rows, info, COMMAND)
     if args.update:
         replace_section(Path(args.update), text)
         print(f"replaced the section {TITLE!r} of {args.update}", file=sys.stderr)

@@ -26,7 +26,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _common import interleaved_timings, machine  # noqa: E402
+from _common import interleaved_timings, machine, write_result  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 from jaximpact.reference import thornton_ning as tn  # noqa: E402
@@ -124,7 +124,11 @@ def main():
     print("| p_y (Pa) | impacts (captured) | status differences | cor_n | max_overlap (rel) |"
           " contact_time (rel) | ledger (of energy in) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|")
+    figures = {"accuracy": []}
     for p_y, n, captured, mismatched, err, ledger in accuracy(speeds):
+        figures["accuracy"].append(dict(p_y=p_y, impacts=n, captured=captured,
+                                        status_differences=mismatched, errors=err,
+                                        ledger=ledger))  # fmt: skip
         print(
             f"| {p_y:.0e} | {n} ({captured}) | {mismatched} | {err['cor_n']:.1e} | "
             f"{err['max_overlap']:.1e} | {err['contact_time']:.1e} | {ledger:.1e} |"
@@ -143,6 +147,20 @@ def main():
         f"{'converged' if result.converged else 'NOT converged'} in {wall:.1f} s; "
         + ", ".join(f"{k} = {result.values[k]:.5g} +- {result.stderr[k]:.2g}" for k in ("w", "p_y"))
     )
+    figures["timing"] = {
+        "impacts": args.impacts,
+        **{law: dict(first=f, warm=w, rate=args.impacts / w, mean_steps=s)
+           for law, (f, w, s) in t.items()},
+        "thornton_ning_over_jkr": ratio,
+    }  # fmt: skip
+    figures["synthetic_fit"] = {
+        "converged": bool(result.converged),
+        "seconds": wall,
+        "values": {k: result.values[k] for k in ("w", "p_y")},
+        "stderr": {k: result.stderr[k] for k in ("w", "p_y")},
+    }
+    command = f"python benchmarks/thornton_ning_accuracy.py --impacts {args.impacts}"
+    write_result("thornton_ning_accuracy", figures, info, command)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ import jax  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
+from _common import machine, write_result  # noqa: E402
 
 import jaximpact as ji  # noqa: E402
 from jaximpact import reference  # noqa: E402
@@ -152,6 +153,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=2000, help="random points for the table")
     ap.add_argument("--skip-derivatives", action="store_true")
     args = ap.parse_args()
+    info = machine()
     load = os.getloadavg()[0]
     w = wall_law_figures(args.points)
     R, A, W, X = w["shape"]
@@ -169,7 +171,9 @@ def main() -> None:
         )
         + f"; check {w['check']:.1f} s"
     )
+    figures = {"wall_law": w}
     c = capture_accuracy(args.scenes)
+    figures["capture_speed"] = c
     e = c["errors"]
     print(
         f"capture_speed: statuses of {c['drawn']} random scenes x (0, 45 deg): {c['statuses']}; "
@@ -188,6 +192,12 @@ def main() -> None:
             + ", ".join(f"{k} {v:.1e}" for k, v in by_name.items())
             + f"; first jax.jacfwd {d['first_jacfwd_seconds']:.0f} s (compiling included)"
         )
+        figures["derivatives"] = {"largest_relative_error": by_name,
+                                  "first_jacfwd_seconds": d["first_jacfwd_seconds"]}  # fmt: skip
+    command = (
+        f"python benchmarks/wall_law_benchmark.py --scenes {args.scenes} --points {args.points}"
+    )
+    write_result("wall_law_benchmark", figures, info, command)
 
 
 if __name__ == "__main__":
