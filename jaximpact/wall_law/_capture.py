@@ -108,6 +108,11 @@ class CaptureSpeed(eqx.Module):
     - `next_capture`: m/s, the lowest scanned speed above `speed` at which the sphere sticks
       again (status ``multiple``), else ``inf`` (resolution: the scan's step, a factor 2.15).
     - `evaluations`: impacts simulated per value (scan and root find).
+    - `implicit`: how many values were searched on the implicit solver (``solver.method =
+      "auto"``: each value's solver is chosen once for its whole search, by the engine's
+      stiffness rule at the scan's lowest and highest speed).
+    - `retried`: how many of those moved to it because an impact reached ``max_steps`` on the
+      explicit solver (that impact was run again on the implicit one).
     """
 
     speed: jax.Array
@@ -115,6 +120,8 @@ class CaptureSpeed(eqx.Module):
     bracket: tuple
     next_capture: jax.Array
     evaluations: int = eqx.field(static=True, default=0)
+    implicit: int = eqx.field(static=True, default=0)
+    retried: int = eqx.field(static=True, default=0)
 
     @property
     def status_names(self) -> np.ndarray:
@@ -191,12 +198,13 @@ def capture_speed(
     params = scene_parameters(scene)
     adhesive = bool(scene.model.adhesion)
     names = tuple(params)
-    evaluations = []
+    evaluations, solvers = [], []
 
     def search(values, angle, omega):
         a, w = _checked_concrete(values, angle, omega)
         out = _remembered_search(scene, names, values, a, w, adhesive, rtol, speed_range)
         evaluations.append(out["evaluations"])
+        solvers.append((int(out["implicit"].sum()), int(out["retried"].sum())))
         dtype = jnp.result_type(float)
         fields = (out["speed"], out["status"].astype(float), out["lo"], out["hi"], out["next"])
         return tuple(jnp.asarray(x, dtype) for x in fields)
@@ -228,6 +236,8 @@ def capture_speed(
         bracket=(jax.lax.stop_gradient(lo), jax.lax.stop_gradient(hi)),
         next_capture=jax.lax.stop_gradient(again),
         evaluations=int(evaluations[-1]) if evaluations else 0,
+        implicit=solvers[-1][0] if solvers else 0,
+        retried=solvers[-1][1] if solvers else 0,
     )
 
 
@@ -313,6 +323,7 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range, pro
     strength = params["f0"] if scene.model.normal == "brach_dunn" else params["w"]
     lanes = np.flatnonzero(strength > 0) if adhesive else np.array([], int)
     evaluations = 0
+    implicit, retried = np.zeros(size, bool), np.zeros(size, bool)
     if lanes.size:
         sub = {k: v[lanes] for k, v in params.items()}
         # A search of a few lanes is compile-bound: the compact program compiles in half the
@@ -325,6 +336,7 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range, pro
         speed[lanes], status[lanes] = res["speed"], res["status"]
         lo_out[lanes], hi_out[lanes] = res["lo"], res["hi"]
         again[lanes] = res["next"]
+        implicit[lanes], retried[lanes] = res["implicit"], res["retried"]
         evaluations = res["evaluations"]
     reshape = lambda x: x.reshape(shape)  # noqa: E731
     return {
@@ -334,6 +346,8 @@ def _search(scene, names, values, angle, omega, adhesive, rtol, speed_range, pro
         "hi": reshape(hi_out),
         "next": reshape(again),
         "evaluations": evaluations,
+        "implicit": reshape(implicit),
+        "retried": reshape(retried),
     }
 
 
@@ -355,18 +369,10 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
     """Scan, rule and root find (module docstring) for lanes with adhesion; ``grid``: the
     speeds to scan, ``(lanes, points)``, instead of :func:`scan_speeds`."""
     n = angle.size
-    lanes_scene = scene_with(scene, params)
-
-    def run(v):
-        res = simulate(lanes_scene, v, angle, omega)
-        st = np.asarray(res.status)
-        # the secant works on vn_out^2 against v^2 (the energies: nearly linear near v_c,
-        # where the adhesive loss hardly changes with the speed)
-        q = np.where(st == 0, np.asarray(res.vn_out) ** 2, np.nan)
-        return st, q
-
     if grid is None:
         grid = scan_speeds(params, speed_range, law=scene.model.normal)
+    lanes = _Lanes(simulate, scene, params, angle, omega, grid)
+    run = lanes.run
     points = grid.shape[1]
     st_scan = np.empty((n, points), int)
     g_scan = np.empty((n, points))
@@ -397,7 +403,78 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
         "hi": hi,
         "next": again,
         "evaluations": points + steps,
+        "implicit": lanes.method == IMPLICIT_METHOD,
+        "retried": lanes.retried,
     }
+
+
+# The implicit solver of ``method = "auto"`` (``_engine.settings.integration_settings``).
+IMPLICIT_METHOD = "kvaerno5"
+
+
+class _Lanes:
+    """The search's impacts, each lane on one solver throughout its search.
+
+    With ``solver.method = "auto"`` the engine picks the solver per call, for the whole batch,
+    from the stiffness of the impacts at hand; a search calls it at speeds spread over six
+    decades, so a lane's solver changed from one call to the next with its speed and with the
+    other lanes' (and the implicit one, near a lane's capture speed, put the threshold
+    elsewhere). Here each lane's solver is chosen once, by the engine's own rule
+    (:func:`integration_settings`), at the lowest and the highest speed of its scan (the
+    stiffness grows or falls monotonically with the speed): implicit if either is judged
+    stiff. A lane whose impact still reaches ``max_steps`` on the explicit solver (the
+    estimate is an estimate) moves to the implicit one for the rest of its search, that
+    impact run again (``retried``). Each solver's lanes run as one batch, padded to a power
+    of two lanes so that a move seldom compiles a new program. Other methods than ``auto``:
+    every lane on the scene's method, as before."""
+
+    def __init__(self, simulate, scene, params, angle, omega, grid):
+        self.simulate, self.scene, self.params = simulate, scene, params
+        self.angle, self.omega = angle, omega
+        n = angle.size
+        self.retried = np.zeros(n, bool)
+        if scene.solver.method != "auto":
+            self.method = np.full(n, None, dtype=object)
+            return
+        from .._engine.settings import integration_settings
+
+        dtype = jnp.result_type(float)
+
+        def method(i, speed):
+            lane = {k: jnp.asarray(v[i], dtype) for k, v in params.items()}
+            return integration_settings(
+                scene, lane, jnp.asarray(speed, dtype), jnp.asarray(angle[i], dtype), dtype
+            ).method
+
+        stiff = [any(method(i, grid[i, k]) == IMPLICIT_METHOD for k in (0, -1)) for i in range(n)]
+        self.method = np.where(stiff, IMPLICIT_METHOD, "tsit5").astype(object)
+
+    def _run_group(self, method, lanes, v):
+        """Statuses and ``vn_out`` of ``lanes`` at speeds ``v`` (all lanes' speeds)."""
+        size = 1 << max(1, int(lanes.size - 1).bit_length())  # a power of two, >= 2
+        pad = np.concatenate([lanes, np.full(size - lanes.size, lanes[-1])])
+        sub = scene_with(self.scene, {k: x[pad] for k, x in self.params.items()})
+        res = self.simulate(sub, v[pad], self.angle[pad], self.omega[pad], method=method)
+        return np.asarray(res.status)[: lanes.size], np.asarray(res.vn_out)[: lanes.size]
+
+    def run(self, v):
+        """``(status, q)`` of every lane at its speed ``v``: ``q = vn_out^2`` of a rebound
+        (the secant works on the energies: nearly linear near v_c, where the adhesive loss
+        hardly changes with the speed), NaN otherwise."""
+        n = v.size
+        st, vn = np.empty(n, int), np.full(n, np.nan)
+        todo = np.ones(n, bool)
+        while todo.any():
+            for method in dict.fromkeys(self.method[todo]):
+                lanes = np.flatnonzero(todo & (self.method == method))
+                st[lanes], vn[lanes] = self._run_group(method, lanes, v)
+            todo[:] = False
+            if self.scene.solver.method == "auto":
+                stuck = (self.method != IMPLICIT_METHOD) & (st == 2)  # Status.MAX_STEPS
+                self.method[stuck] = IMPLICIT_METHOD
+                self.retried |= stuck
+                todo = stuck
+        return st, np.where(st == 0, vn**2, np.nan)
 
 
 def _secant_search(run, grid, g_scan, top, active, status, rtol) -> tuple:
