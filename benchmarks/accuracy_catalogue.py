@@ -402,24 +402,28 @@ def main():
     ap.add_argument("--cache", help="pickle the catalogue and reference here and reuse it")
     ap.add_argument("-o", "--output", help="also write the Markdown table here")
     args = ap.parse_args()
-    text, *_ = run(
+    text, results, *_ = run(
         args.quick, args.seed, parse_settings(args.setting), not args.no_float32, args.cache
     )
     if not args.setting:
-        from _common import default_settings, machine, measured_line
+        from _common import default_settings, machine, measured_line, write_result
 
         command = "python benchmarks/accuracy_catalogue.py" + (" --quick" if args.quick else "")
         command += f" --seed {args.seed}" if args.seed != 2013 else ""
         command += " --no-float32" if args.no_float32 else ""
+        info = machine()
         text = (
             "## Accuracy\n\n"
-            + measured_line(machine(), command, settings=default_settings())
+            + measured_line(info, command, settings=default_settings())
             + "\n"
             + text
         )
     print(text)
     if args.output:
         Path(args.output).write_text(text + "\n")
+    if not args.setting:  # the published settings: a result file
+        name = "accuracy_catalogue" + ("_quick" if args.quick else "")
+        write_result(name, {"summary": results, "markdown": text}, info, command)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,8 @@ Gorham & Salman (2001) with the Mindlin model, against an exact grid of the same
    grid's sd (issue 52's target: 0.1 sd), and the evaluations it took.
 
 Run: ``python benchmarks/kharaz_mindlin_posterior.py [--json out.json]`` (about 3 minutes on
-2 cores).
+2 cores); the figures go to ``benchmarks/results/kharaz_mindlin_posterior.json`` unless
+``--json`` names another file.
 """
 
 import argparse
@@ -29,7 +30,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import machine, measured_line, table  # noqa: E402
+from _common import machine, measured_line, results_dir, table  # noqa: E402
+
+RESULT = "kharaz_mindlin_posterior.json"
 
 COMMAND = "python benchmarks/kharaz_mindlin_posterior.py"
 NAMES = ("friction", "G_star")
@@ -63,8 +66,11 @@ def grid(points):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--json", help="write the rows here")
+    parser.add_argument(
+        "--json", help="write the figures here (default: benchmarks/results/" + RESULT + ")"
+    )
     args = parser.parse_args()
+    args.json = args.json or str(results_dir() / RESULT)
     info = machine()
     work = Path(tempfile.mkdtemp(prefix="kharaz_mindlin_"))
     try:

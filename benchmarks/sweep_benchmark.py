@@ -445,7 +445,7 @@ def main() -> None:
     if args.pipeline_report:
         report_from_output(args.pipeline_report, args.repeats)
         return
-    from _common import default_settings, machine, measured_line
+    from _common import default_settings, machine, measured_line, write_result
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="sweep-bench-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -463,7 +463,8 @@ def main() -> None:
         if args.repeats != 3:
             command += f" --repeats {args.repeats}"
         print("## Large sweeps\n")
-        print(measured_line(machine(), command, settings=default_settings()))
+        info = machine()
+        print(measured_line(info, command, settings=default_settings()))
         print(
             "Embedded Table 1 scene, oblique spinning impacts (0.5-5 m/s, -60..60 deg, "
             "|omega0| <= 2e4 rad/s): the sweep's marginal rate against `simulate`'s on the "
@@ -471,24 +472,24 @@ def main() -> None:
         )
         rows = pipeline(work, args.chunk_size, args.pipeline_chunks, args.repeats, configs)
         report_pipeline(rows, args.repeats)
+        write_result("sweep_benchmark_pipeline", rows, info, command)
         if not args.workdir:
             shutil.rmtree(work, ignore_errors=True)
         return
     args.chunk_size = args.chunk_size or 8192  # float64 below
     print("### A sweep end to end, and over host devices\n")
-    print(
-        measured_line(
-            machine(),
-            "python benchmarks/sweep_benchmark.py"
-            + (f" --n {args.n}" if args.n != 1_000_000 else "")
-            + (f" --scaling-n {args.scaling_n}" if args.scaling_n != 65536 else ""),
-            settings=default_settings(),
-        )
+    info = machine()
+    command = (
+        "python benchmarks/sweep_benchmark.py"
+        + (f" --n {args.n}" if args.n != 1_000_000 else "")
+        + (f" --scaling-n {args.scaling_n}" if args.scaling_n != 65536 else "")
     )
+    print(measured_line(info, command, settings=default_settings()))
     print(
         "`jaximpact sweep` on the embedded Table 1 scene, oblique spinning impacts "
         "(0.5-5 m/s, -60..60 deg, |omega0| <= 2e4 rad/s), float64.\n"
     )
+    big = None
     if not args.skip_big:
         big = big_sweep(work, args.n, args.chunk_size)
         print(
@@ -513,6 +514,7 @@ def main() -> None:
             f"| {row['devices']} | {row['median_s']:.2f} | {row['rate']:.0f} | "
             f"{row['rate'] / rows[0]['rate']:.2f} |"
         )
+    write_result("sweep_benchmark", {"big": big, "scaling": rows}, info, command)
     if not args.workdir:
         shutil.rmtree(work, ignore_errors=True)
 

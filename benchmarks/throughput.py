@@ -685,6 +685,8 @@ if __name__ == "__main__":
     ap.add_argument("--n", type=int, default=20000, help="batch size")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
+    from _common import machine, write_result
+
     if args.worker:
         worker(json.loads(args.worker))
     elif args.paths_worker:
@@ -692,12 +694,24 @@ if __name__ == "__main__":
     elif args.profile_worker:
         profile_worker(json.loads(args.profile_worker))
     elif args.profile:
-        print(profile())
+        info = machine()
+        text = profile()
+        print(text)
+        command = "python benchmarks/throughput.py --profile"
+        write_result("throughput_profile", {"markdown": text}, info, command)
     elif args.scipy_ratio_worker:
         scipy_ratio_worker(json.loads(args.scipy_ratio_worker))
     elif args.scipy_ratio:
-        print(scipy_ratio(args.n)[0])
+        info = machine()
+        text, data = scipy_ratio(args.n)
+        print(text)
+        command = f"python benchmarks/throughput.py --scipy-ratio --n {args.n}"
+        write_result("throughput_scipy_ratio", data, info, command)
     elif args.paths:
-        print(paths(args.n, args.repeats)[0])
+        info = machine()
+        text, data = paths(args.n, args.repeats)
+        print(text)
+        command = f"python benchmarks/throughput.py --paths --n {args.n}"
+        write_result("throughput_paths", data, info, command)
     else:
         ap.error("give --paths, --profile or --scipy-ratio")

@@ -78,6 +78,30 @@ def test_quick_command_lines():
         benchmarks.command("posterior_grid", quick=True)
 
 
+# Scripts that print a table without write_result, and where their figures live instead.
+OWN_DATA_FILES = {
+    "normal_law_comparison": "--out: JSON lines of every data set (benchmarks/results/)",
+    "posterior_sbc": "--out: JSON lines of every replication (benchmarks/results/)",
+    "posterior_grid": "--json: every case (benchmarks/results/posterior_grid.json)",
+    "posterior_end_to_end": "not yet: its raw output is benchmarks/results/*.txt",
+    "stability": "a section of run_all.py, which writes run_all_stability.json",
+    "work_precision": "a section of run_all.py, which writes run_all_work_precision.json",
+    "summary": "a module: the At a glance rows from run_all's data",
+    "targets": "reads the result files",
+}
+
+
+def test_scripts_that_print_tables_write_result_files():
+    missing = []
+    for name in SCRIPTS:
+        text = (ROOT / "benchmarks" / f"{name}.py").read_text(encoding="utf-8")
+        prints_table = "|---" in text or "table(" in text
+        writes = "write_result(" in text or "results_dir()" in text
+        if prints_table and not writes and name not in OWN_DATA_FILES:
+            missing.append(name)
+    assert not missing, f"print a table but write no result file: {missing}"
+
+
 def test_run_time_is_read_from_the_docstring():
     assert benchmarks.run_time("X.\n\nDuration: about 4 minutes on 2 cores.\n") == (
         "about 4 minutes on 2 cores"
