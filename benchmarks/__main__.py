@@ -1,4 +1,5 @@
-"""``python -m benchmarks``: list the benchmarks, run one, or write the table of targets.
+"""``python -m benchmarks`` (from the repository root): list the benchmarks, run one, or write
+the table of targets.
 
     python -m benchmarks --list
     python -m benchmarks NAME [--quick] [--dry-run] [ARGS ...]   # ARGS go to the script

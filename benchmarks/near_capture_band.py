@@ -22,7 +22,7 @@ import time
 
 import jax
 import numpy as np
-from _common import default_settings, machine, measured_line, write_result
+from _common import default_settings, machine, measured_line, median_time, write_result
 
 jax.config.update("jax_enable_x64", True)
 
@@ -148,13 +148,8 @@ def compare_loops(n, repeats=3):
             call = lambda loop=loop: jax.block_until_ready(  # noqa: E731
                 sim._simulate(scene, speed, angle, omega0, loop=loop)
             )
-            call()
-            times = []
-            for _ in range(repeats):
-                t = time.perf_counter()
-                call()
-                times.append(time.perf_counter() - t)
-            rates[loop] = n / float(np.median(times))
+            call()  # compile
+            rates[loop] = n / median_time(call, repeats)
     print(
         measured_line(
             info,
