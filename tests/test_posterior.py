@@ -900,3 +900,34 @@ def test_predictive_plot_labels_stay_inside_and_apart(monkeypatch, tmp_path):
         assert box.x0 >= 0 and box.y0 >= 0 and box.y1 <= fig.bbox.y1, (box, fig.bbox)
     for a, b in itertools.combinations(boxes, 2):
         assert not a.overlaps(b), (a, b)
+
+
+def test_plots_leave_the_callers_matplotlib_alone(tmp_path):
+    """Writing a corner plot neither switches pyplot's backend (it switched to Agg, so a
+    notebook's inline figures stopped showing after the first plot file) nor leaves a pyplot
+    figure open; the file is written."""
+    from types import SimpleNamespace
+
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    from fitting._bayesian import report
+
+    before = matplotlib.get_backend()
+    plt.switch_backend("pdf")  # not Agg, so that a switch to Agg shows
+    backend, open_figures = matplotlib.get_backend(), plt.get_fignums()
+    draws = np.random.default_rng(0).lognormal(size=(2, 50, 2))
+    summary = {
+        n: {"median": 1.0, "q05": 0.5, "q95": 2.0} for n in ("C_A", "f0")
+    }  # fmt: skip
+    result = SimpleNamespace(
+        params=("C_A", "f0"), draws=draws, summary=summary, fit=None, chains=2,
+        converged=True, sampler="smc",
+    )  # fmt: skip
+    try:
+        report.plot_corner(tmp_path / "corner.png", result)
+        after = matplotlib.get_backend()
+    finally:
+        plt.switch_backend(before)
+    assert (tmp_path / "corner.png").stat().st_size > 0
+    assert after == backend and plt.get_fignums() == open_figures

@@ -194,10 +194,7 @@ def read_draws(path, names) -> np.ndarray:
 def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
     """Corner plot of the draws (histograms on the diagonal, scatter below; log axes for
     positive parameters), the least-squares optimum marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     names, p = result.params, len(result.params)
     flat = result.draws.reshape(-1, p)
@@ -206,7 +203,8 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
     # one parameter: a histogram of readable size (2.4 inches would leave it small under the
     # title)
     size = 2.4 * p if p > 1 else 4.8
-    fig, axes = plt.subplots(p, p, figsize=(size, size * (0.75 if p == 1 else 1)), squeeze=False)
+    fig = Figure(figsize=(size, size * (0.75 if p == 1 else 1)))
+    axes = fig.subplots(p, p, squeeze=False)
     for i in range(p):
         for j in range(p):
             ax = axes[i, j]
@@ -248,22 +246,20 @@ def plot_corner(path, result: PosteriorResult, max_points: int = 4000) -> None:
     fig.suptitle("\n".join(lines), fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 1 - (0.1 + 0.2 * len(lines)) / height))
     _atomic_savefig(fig, Path(path))
-    plt.close(fig)
 
 
 def _observable_panels(obs, draw):
     """One panel per observable (``captured`` aside) against impact speed, or incidence angle
     where every impact has one speed: ``draw(ax, order, x)`` adds the model's bands at the
     rows ``order`` (sorted by ``x``), then the data with their sigmas. Returns ``(fig, axes)``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+    from matplotlib.figure import Figure
 
     x_is_angle = np.unique(obs.speed).size == 1
     x = obs.angle_deg if x_is_angle else obs.speed
     names = [k for k in OBSERVABLES if k != "captured" and np.any(obs.observable == k)]
-    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
+    fig = Figure(figsize=(6.4, 2.8 * len(names)))
+    axes = fig.subplots(len(names), 1, squeeze=False)
     for ax, name in zip(axes[:, 0], names, strict=True):
         sel = np.flatnonzero(obs.observable == name)
         draw(ax, sel[np.argsort(x[sel], kind="stable")], x)
@@ -282,8 +278,6 @@ def _observable_panels(obs, draw):
 def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
     """Data against the posterior: the 90 % band of the model (dark) and of new data
     (light, the model plus the likelihood's noise) at each observed impact."""
-    import matplotlib.pyplot as plt
-
     model, predicted = posterior_predictive(result, n)
 
     def draw(ax, order, x):
@@ -322,7 +316,6 @@ def plot_predictive(path, result: PosteriorResult, n: int = 200) -> None:
     )
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
-    plt.close(fig)
 
 
 def _unit(name: str) -> str:
@@ -381,8 +374,6 @@ def _unreliable(row: dict) -> int:
 def plot_comparison(path, results: dict[str, PosteriorResult], n: int = 200) -> None:
     """Data against each model's posterior: its median and 90 % band at each observed
     impact, side by side (one panel per observable)."""
-    import matplotlib.pyplot as plt
-
     first = next(iter(results.values()))
     obs = first.fit.objective.observations
     models = {label: posterior_predictive(r, n)[0] for label, r in results.items()}
@@ -404,4 +395,3 @@ def plot_comparison(path, results: dict[str, PosteriorResult], n: int = 200) -> 
     axes[0, 0].set_title("the models' posteriors against the data", fontsize=9)
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
-    plt.close(fig)

@@ -222,10 +222,7 @@ def profile_summary(p: Profile) -> str:
 def plot_profile(path, p: Profile) -> None:
     """The profile deviance against the parameter, with the 95 % threshold and both
     intervals."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from jaximpact._model.ranges import RANGES
 
@@ -233,7 +230,8 @@ def plot_profile(path, p: Profile) -> None:
 
     unit = RANGES[p.name].unit
     unit = "" if unit == "1" else f" {unit}"
-    fig, ax = plt.subplots(figsize=(5.6, 3.6))
+    fig = Figure(figsize=(5.6, 3.6))
+    ax = fig.subplots()
     ax.plot(p.grid, p.deviance, "o-", color="C0", label="profile deviance")
     ax.plot(
         p.grid,
@@ -269,4 +267,3 @@ def plot_profile(path, p: Profile) -> None:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
-    plt.close(fig)

@@ -208,16 +208,14 @@ def plot_fit(path, result: FitResult) -> None:
     carries its unit. The model at the data and along the curves is one ``simulate`` call
     (the compact program, rebound outputs only: one compilation of the smaller program).
     Written atomically (temporary file in the same directory, then :func:`os.replace`; through
-    a symbolic link to its target), with matplotlib's Agg backend.
+    a symbolic link to its target), as a matplotlib ``Figure`` of its own (no pyplot: the
+    caller's backend and figures, a notebook's inline ones, are left as they were).
 
     Arguments:
         path: output image (format from the suffix, e.g. ``.png``, ``.pdf``).
         result: a `FitResult`.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     obs = result.objective.observations
     imp = obs.impacts
@@ -227,7 +225,8 @@ def plot_fit(path, result: FitResult) -> None:
     curves = _curves(obs, x_is_angle) if not imp.overrides else []
     model, grid_results = _plotted_model(result, curves)
 
-    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.8 * len(names)), squeeze=False)
+    fig = Figure(figsize=(6.4, 2.8 * len(names)))
+    axes = fig.subplots(len(names), 1, squeeze=False)
     for ax, name in zip(axes[:, 0], names, strict=True):
         sel = obs.observable == name
         sigma = np.where(np.isfinite(obs.sigma[sel]), obs.sigma[sel], 0.0)
@@ -260,7 +259,6 @@ def plot_fit(path, result: FitResult) -> None:
     )
     fig.tight_layout()
     _atomic_savefig(fig, Path(path))
-    plt.close(fig)
 
 
 def _plotted_model(result: FitResult, curves) -> tuple:
