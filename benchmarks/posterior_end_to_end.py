@@ -36,7 +36,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import machine, measured_line, table  # noqa: E402
+from _common import machine, measured_line, table, write_result  # noqa: E402
 
 COMMAND = "python benchmarks/posterior_end_to_end.py"
 
@@ -152,7 +152,25 @@ def main():
     args = ap.parse_args()
     info = machine()
     rows = measure(args.cases, args.repeats)
-    print(report(rows, info, COMMAND + (f" --repeats {args.repeats}" if args.repeats > 1 else "")))
+    command = COMMAND + (f" --repeats {args.repeats}" if args.repeats > 1 else "")
+    print(report(rows, info, command))
+    write_result("posterior_end_to_end", figures(rows), info, command)
+
+
+def figures(rows) -> list[dict]:
+    """One row per case and cache: the median wall seconds and the first run's figures."""
+    out = []
+    for (case, phase), runs in rows.items():
+        post = runs[0][1]["posterior"]
+        t = post["timings"]
+        out.append({
+            "case": case, "cache": phase, "wall": statistics.median(w for w, _ in runs),
+            "walls": [w for w, _ in runs], "fit": t.get("fit"), "sampling": t.get("sampling"),
+            "evaluations": post["evaluations"], "converged": post["converged"],
+            "ess_min": min(p["posterior"]["ess"] for p in runs[0][1]["params"].values()),
+            "target": TARGETS[case] if phase == "cold" else None,
+        })  # fmt: skip
+    return out
 
 
 if __name__ == "__main__":

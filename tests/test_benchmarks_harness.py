@@ -83,7 +83,6 @@ OWN_DATA_FILES = {
     "normal_law_comparison": "--out: JSON lines of every data set (benchmarks/results/)",
     "posterior_sbc": "--out: JSON lines of every replication (benchmarks/results/)",
     "posterior_grid": "--json: every case (benchmarks/results/posterior_grid.json)",
-    "posterior_end_to_end": "not yet: its raw output is benchmarks/results/*.txt",
     "stability": "a section of run_all.py, which writes run_all_stability.json",
     "work_precision": "a section of run_all.py, which writes run_all_work_precision.json",
     "summary": "a module: the At a glance rows from run_all's data",
