@@ -21,6 +21,7 @@ from jaximpact import reference as ref
 from jaximpact._engine.simulate import _scaled, required_terms, scene_parameters
 from jaximpact._model import dynamics as dyn
 from jaximpact._model import laws
+from jaximpact.wall_law import adhesion_speed
 
 R, RHO, K = 35e-6, 8000.0, 11.4e10
 
@@ -82,6 +83,31 @@ def test_elastic_impact_conserves_energy_and_reaches_the_closed_form_overlap():
 
         want = brentq(balance, 1e-15, 1e-3, xtol=1e-30, rtol=1e-15)
         assert got == pytest.approx(want, rel=1e-7), v
+
+
+LOSSES = ("loss_hertz_damping", "loss_adhesion_damping", "loss_friction", "loss_rolling")
+
+
+def test_slow_elastic_exits_keep_their_energy():
+    """An undamped DMT impact rebounds with ``cor_n = 1`` at any speed (no force out of
+    contact): down to 1e-6 of the adhesion speed ``v_ad``, where the well is 1e12 times the
+    impact's energy, ``cor_n`` stays within 1e-6 of 1. The exit speed comes from the energy
+    balance (``dynamics.balanced_normal_energy``); from ``ndot^2/2 + V(n)`` it was 2.7e-3 off
+    at 1e-4 v_ad, 3e-2 at 3e-5, and the impacts at 1e-5 and 1e-6 v_ad were reported captured.
+    Oblique too (the rigid tangential law does no work on the normal motion)."""
+    w = 5.0
+    scene = dmt_scene(w=w, C_H=0.0, moments="none")
+    params = scene_parameters(scene)
+    v_ad = float(adhesion_speed(params["radius"], params["density"], params["K"], 0.0, w, "dmt"))
+    ratios = np.array([1.0, 1e-1, 1e-2, 1e-3, 1e-4, 3e-5, 1e-5, 1e-6])
+    for angle in (0.0, 40.0):
+        res = ji.simulate(scene, v_ad * ratios, angle, 0.0)
+        assert list(res.status_names) == ["rebound"] * ratios.size, angle
+        np.testing.assert_allclose(np.asarray(res.cor_n), 1.0, rtol=0, atol=1e-6)
+        # the ledger closes (friction's loss the only one)
+        lost = sum(np.asarray(getattr(res, k)) for k in LOSSES)
+        np.testing.assert_allclose(np.asarray(res.energy_out) + lost, res.energy_in, 1e-9)
+        assert np.all(np.asarray(res.loss_hertz_damping) == 0.0)
 
 
 @pytest.mark.slow  # two programs (JKR's w = 0 runs by default)

@@ -230,7 +230,9 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     event_hit = sol.result == diffrax.RESULTS.event_occurred
     spring = dyn.tangential_energy(terms, p, y) if terms.mindlin else None
     peak = y.get("peak")
-    exit_ = _shell_exit(terms, p, y["ndot"], spring, y["xi"] if terms.mindlin else None, peak)
+    balance = dyn.balanced_normal_energy(terms, p, y)
+    xi = y["xi"] if terms.mindlin else None
+    exit_ = _shell_exit(terms, p, y["ndot"], spring, xi, peak, balance)
     if terms.adhesion:
         # At the event one of the two is ~0 and the other positive. A sphere whose normal
         # energy runs out inside the shell below the floor is captured too.

@@ -102,7 +102,7 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None, peak=None) -
 
 
 def _shell_exit(
-    terms: dyn.Terms, p: ScaledParameters, ndot, spring=None, xi=None, peak=None
+    terms: dyn.Terms, p: ScaledParameters, ndot, spring=None, xi=None, peak=None, balance=None
 ) -> dict:
     """The separation through the shell below the floor, in closed form (see ``_shell_entry``).
 
@@ -111,11 +111,16 @@ def _shell_exit(
     ``spring``: the Mindlin spring's energy at the floor, which its normal force returns to the
     normal motion in the shell (its tangential impulse there, ``O(floor^2.5)``, is left out);
     ``xi``: the spring's displacement, for JKR's stretch (:func:`_jkr_exit`); ``peak``:
-    Thornton-Ning's peak overlap.
+    Thornton-Ning's peak overlap; ``balance``: the normal energy at the floor from the energy
+    balance (``dyn.balanced_normal_energy``), which then gives the speed there and the exit
+    energy (``balance`` less the shell's losses), instead of ``ndot``.
     """
     if terms.jkr:
         return _jkr_exit(terms, p, ndot, xi, peak)
     eps = terms.contact_floor
+    if balance is not None:
+        kinetic = balance - dyn.normal_potential(terms, p, jnp.full_like(ndot, eps))
+        ndot = -jnp.sqrt(jnp.maximum(2.0 * kinetic, 0.0))
     sr = jnp.sqrt(p.radius)
     speed = jnp.abs(ndot)
     hertz = 0.4 * p.K * sr * eps**2.5
@@ -129,6 +134,9 @@ def _shell_exit(
     if spring is not None:
         work = work + spring
     energy = ndot**2 + 2.0 * work
+    if balance is not None:  # the same sum, without the well's terms that cancel in it
+        lost = shell["loss_hertz_damping"] + shell["loss_adhesion_damping"]
+        energy = 2.0 * (balance - lost) + (0.0 if spring is None else 2.0 * spring)
     shell["ok"] = energy > 0
     out_speed = jnp.sqrt(jnp.where(shell["ok"], energy, 1.0))
     shell["ndot"] = -out_speed
