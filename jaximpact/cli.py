@@ -52,6 +52,18 @@ SHOWN_COLUMNS = (
 )
 
 
+def check_columns_used(scene, names, source) -> None:
+    """Refuse a per-row parameter column that the scene does not use (its values would change
+    nothing: ``G_star`` without the Mindlin spring, say), naming the file and the column."""
+    from ._io.csv_rows import TableError
+    from .parameters import unused_reason
+
+    for name in names:
+        reason = unused_reason(scene, name)
+        if reason is not None:
+            raise TableError(f"{source}: column {name}: {reason}")
+
+
 def scene_with_overrides(scene, overrides: dict):
     """The scene with per-impact parameter arrays (impacts-CSV columns) put in place (names
     of ``jaximpact.parameters.PARAMETERS``)."""
@@ -108,6 +120,7 @@ def cmd_simulate(args) -> int:
     if args.impacts:
         check_readable(args.impacts, "impacts file")
         table = read_impacts(args.impacts)
+        check_columns_used(scene, table.overrides, args.impacts)
     elif args.scene is None:
         table = ImpactTable(
             **{k: np.array(v) for k, v in PAPER_IMPACTS.items()}, columns=tuple(PAPER_IMPACTS)

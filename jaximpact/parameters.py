@@ -27,6 +27,7 @@ __all__ = [
     "Parameter",
     "parameter_value",
     "place",
+    "unused_reason",
     "with_parameters",
 ]
 
@@ -149,6 +150,31 @@ def with_parameters(scene, values: Mapping[str, object]):
         section, key = place(name)
         sections.setdefault(section, {})[key] = value
     return scene.replace(**sections) if sections else scene
+
+
+def unused_reason(scene, name: str) -> str | None:
+    """Why ``scene`` does not use parameter ``name`` (a value given for it would change
+    nothing), or None where it does: ``G_star`` without the Mindlin spring, ``w`` with the
+    Brach-Dunn ring, ``f0`` with another normal law, ``p_y`` without Thornton-Ning's."""
+    model = scene.model
+    if name == "G_star" and model.tangential != "mindlin":
+        return (
+            f'G_star is used only with model.tangential = "mindlin" (the scene has '
+            f'"{model.tangential}"); e.g. the embedded scene kharaz2001_mindlin'
+        )
+    if name == "w" and model.normal == "brach_dunn":
+        return (
+            'w (work of adhesion) is used only with model.normal = "dmt", "jkr" or '
+            '"thornton_ning" (the scene has "brach_dunn"); the Brach-Dunn ring takes f0'
+        )
+    if name == "f0" and model.normal != "brach_dunn":
+        return f"f0 is the Brach-Dunn ring's; the {model.normal} law takes w (work of adhesion)"
+    if name == "p_y" and model.normal != "thornton_ning":
+        return (
+            'p_y (limiting contact pressure) is used only with model.normal = "thornton_ning" '
+            f'(the scene has "{model.normal}")'
+        )
+    return None
 
 
 def parameter_value(scene, name: str):

@@ -880,3 +880,67 @@ def test_fit_plot_says_it_is_drawing(tmp_path):
     )
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert f"wrote {png}" in proc.stdout
+
+
+# -- per-row parameters of the newer laws: w, G_star, p_y -------------------------------------
+
+DMT_SCENE = """
+[particle]
+radius = 2.5e-6
+density = 2500.0
+[contact]
+K = 1.0e10
+w = 0.05
+friction = 0.3
+C_H = 0.1
+[model]
+normal = "dmt"
+"""
+
+
+@pytest.mark.parametrize(
+    "scene, column, value, expected",
+    [
+        ("table1", "G_star", "1e9", 'G_star is used only with model.tangential = "mindlin"'),
+        ("dmt.toml", "p_y", "1e8", "p_y (limiting contact pressure) is used only with"),
+        ("table1", "w", "0.05", "w (work of adhesion) is used only with"),
+        ("dmt.toml", "f0", "300", "f0 is the Brach-Dunn ring's; the dmt law takes w"),
+    ],
+)
+def test_per_row_column_the_scene_does_not_use_is_refused(tmp_path, scene, column, value,
+                                                          expected):  # fmt: skip
+    """A column whose values could change nothing (the scene's laws do not read it) is bad
+    input: exit 2, one line naming the file, the column and the law that would use it; the
+    same for a sweep's grid axis."""
+    (tmp_path / "dmt.toml").write_text(DMT_SCENE)
+    (tmp_path / "impacts.csv").write_text(f"speed,angle_deg,{column}\n1.0,30,{value}\n")
+    proc = run_here("simulate", scene, "--impacts", "impacts.csv", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "impacts.csv: column " + column in lines[0], lines
+    assert expected in lines[0]
+    proc = run_here("sweep", scene, "--grid", f"{column}={value}", "-o", "s.parquet",
+                    "--no-progress", cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 2 and expected in proc.stderr, proc.stderr
+    assert not (tmp_path / "s.parquet").exists()
+
+
+def test_per_row_w_column_gives_the_impacts_of_scenes_with_that_w(tmp_path):
+    """An impacts CSV may vary the DMT law's w per row (as fit does): each row's result is
+    that of the scene with its w."""
+    import jaximpact as ji
+    from jaximpact.cli import check_columns_used, scene_with_overrides
+    from jaximpact.tables import read_impacts
+
+    (tmp_path / "dmt.toml").write_text(DMT_SCENE)
+    (tmp_path / "impacts.csv").write_text("speed,angle_deg,w\n0.5,30,0.01\n0.5,30,0.2\n")
+    scene = ji.load_scene(tmp_path / "dmt.toml")
+    table = read_impacts(tmp_path / "impacts.csv")
+    check_columns_used(scene, table.overrides, "impacts.csv")
+    rows = ji.simulate(scene_with_overrides(scene, dict(table.overrides)), table.speed,
+                       table.angle_deg)  # fmt: skip
+    for k, w in enumerate((0.01, 0.2)):
+        alone = ji.simulate(scene.replace(contact={"w": w}), 0.5, 30.0)
+        np.testing.assert_allclose(rows.cor_n[k], alone.cor_n, rtol=1e-6)
+        np.testing.assert_allclose(rows.omega_out[k], alone.omega_out, rtol=1e-6)
+    assert abs(float(rows.cor_n[0] - rows.cor_n[1])) > 0.01  # w matters here

@@ -167,3 +167,17 @@ def test_fit_command_lists_the_registrys_names():
     fit = add_fit_command(argparse.ArgumentParser().add_subparsers())
     help_text = " ".join(fit.format_help().split())
     assert "from " + " ".join(FITTABLE) in help_text
+
+
+def test_fit_data_column_the_scene_does_not_use_is_refused(tmp_path):
+    """Fit data with a per-impact G_star column for a rigid-tangential scene: refused before
+    any fitting, naming the file, the column and why (its values would change nothing)."""
+    import pytest
+
+    import jaximpact as ji
+    from fitting import FitError, Objective
+
+    data = tmp_path / "data.csv"
+    data.write_text("speed,angle_deg,G_star,observable,value\n1.0,30,1e9,cor_n,0.8\n")
+    with pytest.raises(FitError, match=r"data\.csv: column G_star: G_star is used only with"):
+        Objective(ji.table1_scene(), data, ["C_H"])

@@ -45,7 +45,7 @@ import jaximpact
 from jaximpact import scene_parameters, stiffness_estimate
 from jaximpact._engine.simulate import _simulate
 from jaximpact.parameters import FITTABLE as FITTABLE_NAMES
-from jaximpact.parameters import parameter_value, place, with_parameters
+from jaximpact.parameters import parameter_value, place, unused_reason, with_parameters
 
 from .._data import OBSERVABLES, Observations, load_observations
 
@@ -117,25 +117,10 @@ def check_names(params: Sequence[str], scene: jaximpact.Scene | None = None) -> 
             raise FitError(f"unknown parameter {name!r}; fittable: {', '.join(FITTABLE)}")
     if len(set(params)) != len(params):
         raise FitError(f"parameter named twice in {list(params)}")
-    if scene is not None and "G_star" in params and scene.model.tangential != "mindlin":
-        raise FitError(
-            f'G_star is used only with model.tangential = "mindlin" (the scene has '
-            f'"{scene.model.tangential}"); e.g. the embedded scene kharaz2001_mindlin'
-        )
-    if scene is not None and "w" in params and scene.model.normal == "brach_dunn":
-        raise FitError(
-            'w (work of adhesion) is used only with model.normal = "dmt", "jkr" or '
-            '"thornton_ning" (the scene has "brach_dunn"); the Brach-Dunn ring takes f0'
-        )
-    if scene is not None and "f0" in params and scene.model.normal != "brach_dunn":
-        raise FitError(
-            f"f0 is the Brach-Dunn ring's; the {scene.model.normal} law takes w (work of adhesion)"
-        )
-    if scene is not None and "p_y" in params and scene.model.normal != "thornton_ning":
-        raise FitError(
-            'p_y (limiting contact pressure) is used only with model.normal = "thornton_ning" '
-            f'(the scene has "{scene.model.normal}")'
-        )
+    for name in params if scene is not None else ():
+        reason = unused_reason(scene, name)
+        if reason is not None:
+            raise FitError(reason)
     return params
 
 
@@ -214,6 +199,10 @@ class Objective:
         unknown = set(np.unique(obs.observable)) - set(OBSERVABLES)
         if unknown:
             raise FitError(f"{obs.source}: unknown observable(s) {sorted(unknown)}")
+        for name in obs.impacts.overrides:
+            reason = unused_reason(scene, name)
+            if reason is not None:
+                raise FitError(f"{obs.source}: column {name}: {reason}")
         clash = set(self.params) & set(obs.impacts.overrides)
         if clash:
             raise FitError(

@@ -6,7 +6,9 @@ IMPACT_COLUMNS = ("speed", "angle_deg", "omega0")
 
 
 #: Scene parameters that an impacts CSV may override per row.
-IMPACT_PARAMETER_COLUMNS = ("radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda")
+IMPACT_PARAMETER_COLUMNS = (
+    "radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda", "G_star", "w", "p_y",
+)  # fmt: skip
 
 
 #: Columns a results CSV holds after the input columns, in this order.
@@ -65,6 +67,9 @@ COLUMN_UNITS = {
     "C_H": "s/m",
     "friction": "1",
     "lambda": "N m",
+    "G_star": "Pa",
+    "w": "J/m^2",
+    "p_y": "Pa",
     "status": "",
     "vn_out": "m/s",
     "vt_out": "m/s",

@@ -292,6 +292,7 @@ SCENE_ARRAYS = (
     ("contact", "friction"),
     ("contact", "G_star"),
     ("contact", "w"),
+    ("contact", "p_y"),
     ("model", "lambda_"),
     ("target", "radius"),
     ("target", "density"),

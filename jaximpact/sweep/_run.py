@@ -217,6 +217,7 @@ def _plan(source, directory: Path, scene_path, chunk_size, restart, process_inde
         )
     index, count = _process_share(chunk_size, devices, process_index, process_count)
     scene = load_scene(scene_path)
+    _check_inputs_used(scene, source)
     chosen, stored_precision = _stored_choices(
         directory, restart, columns, compression, stored_precision
     )
@@ -238,6 +239,17 @@ def _plan(source, directory: Path, scene_path, chunk_size, restart, process_inde
         directory, devices, dtype, scene, chunk_size, index, count, chosen, stored_precision,
         settings, mine, todo, result_columns, own_completed, own_failures, manifest,
     )  # fmt: skip
+
+
+def _check_inputs_used(scene, source) -> None:
+    """A grid axis or impacts column of a parameter that the scene does not use is refused
+    (every value would give the same impacts)."""
+    from ..parameters import unused_reason
+
+    for name in source.value_sets():
+        reason = unused_reason(scene, name)
+        if reason is not None:
+            raise SweepError(f"{name}: {reason}")
 
 
 def _stored_choices(directory: Path, restart: bool, columns, compression, stored_precision):
