@@ -30,6 +30,10 @@ Search
    above it; bisection where the secant leaves the bracket. Converged when the bracket or the
    secant step is below ``rtol`` of the speed.
 
+Solver: with ``solver.method = "auto"`` each lane runs its whole search on one solver, chosen
+for it alone by the engine's rule at its scan's lowest and highest speed; a lane whose impact
+still reaches ``max_steps`` on the explicit one moves to the implicit one (:class:`_Lanes`).
+
 Derivatives (implicit-function theorem): ``dv_c = -(dg/dp . dp) / (dg/dv)``, with the partial
 derivatives of the simulator (forward mode) taken at ``v_c (1 + eps)`` and ``v_c (1 + 2 eps)``
 and extrapolated to ``v_c`` (Richardson: the partials at ``v_c`` itself would read a capture).
