@@ -1,40 +1,82 @@
-"""jaximpact: a differentiable simulator of microsphere impact (Brach, Dunn & Cheng 1999)."""
+"""jaximpact: a differentiable simulator of microsphere impact (Brach, Dunn & Cheng 1999).
 
-from ._engine.api import implausible_impacts as implausible_impacts
-from ._engine.api import simulate as simulate
-from ._engine.devices import use_all_cpu_cores as use_all_cpu_cores
-from ._engine.results import ImpactResult as ImpactResult
-from ._engine.results import Status as Status
-from ._engine.sensitivity import output_jacobian as output_jacobian
-from ._engine.settings import Integration as Integration
-from ._engine.settings import integration_settings as integration_settings
-from ._engine.settings import required_terms as required_terms
-from ._engine.settings import scene_parameters as scene_parameters
-from ._engine.settings import stiffness_estimate as stiffness_estimate
-from ._io.cache import enable_compilation_cache as enable_compilation_cache
-from ._io.scene_files import default_scene_path as default_scene_path
-from ._io.scene_files import embedded_scenes as embedded_scenes
-from ._io.scene_files import load_scene as load_scene
-from ._io.scene_files import scene_from_dict as scene_from_dict
-from ._io.scene_files import scene_path as scene_path
-from ._model.scene import Contact as Contact
-from ._model.scene import Impact as Impact
-from ._model.scene import Model as Model
-from ._model.scene import Particle as Particle
-from ._model.scene import Scene as Scene
-from ._model.scene import SceneError as SceneError
-from ._model.scene import Solver as Solver
-from ._model.scene import Target as Target
-from ._model.scene import damping_from_zeta as damping_from_zeta
-from ._model.scene import hertz_stiffness as hertz_stiffness
-from ._model.scene import table1_scene as table1_scene
-from .wall_law import CaptureSpeed as CaptureSpeed
-from .wall_law import CaptureStatus as CaptureStatus
-from .wall_law import WallLaw as WallLaw
-from .wall_law import capture_speed as capture_speed
-from .wall_law import wall_law as wall_law
+The public names are imported on first use (``import jaximpact`` itself imports JAX and
+nothing else that a call may not need: the solver libraries, the wall law and the file
+readers come with the first name that uses them).
+"""
+
+import importlib
+import importlib.util
+import sys
+import types
 
 __version__ = "0.1.0"
+
+# public name -> the module that defines it (imported on first use)
+_EXPORTS = {
+    "implausible_impacts": "._engine.api",
+    "simulate": "._engine.api",
+    "use_all_cpu_cores": "._engine.devices",
+    "ImpactResult": "._engine.results",
+    "Status": "._engine.results",
+    "output_jacobian": "._engine.sensitivity",
+    "Integration": "._engine.settings",
+    "integration_settings": "._engine.settings",
+    "required_terms": "._engine.settings",
+    "scene_parameters": "._engine.settings",
+    "stiffness_estimate": "._engine.settings",
+    "enable_compilation_cache": "._io.cache",
+    "default_scene_path": "._io.scene_files",
+    "embedded_scenes": "._io.scene_files",
+    "load_scene": "._io.scene_files",
+    "scene_from_dict": "._io.scene_files",
+    "scene_path": "._io.scene_files",
+    "Contact": "._model.scene",
+    "Impact": "._model.scene",
+    "Model": "._model.scene",
+    "Particle": "._model.scene",
+    "Scene": "._model.scene",
+    "SceneError": "._model.scene",
+    "Solver": "._model.scene",
+    "Target": "._model.scene",
+    "damping_from_zeta": "._model.scene",
+    "hertz_stiffness": "._model.scene",
+    "table1_scene": "._model.scene",
+    "CaptureSpeed": ".wall_law",
+    "CaptureStatus": ".wall_law",
+    "WallLaw": ".wall_law",
+    "capture_speed": ".wall_law",
+    "wall_law": ".wall_law",
+}
+__all__ = list(_EXPORTS)
+
+
+class _Package(types.ModuleType):
+    """The package's module type: a public name is imported where it is first asked for."""
+
+    def __getattr__(self, name):
+        if name not in _EXPORTS:
+            # a subpackage (``jaximpact.reference``) as an attribute, as before
+            if name.startswith("__") or importlib.util.find_spec(f"{__name__}.{name}") is None:
+                raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+            return importlib.import_module(f"{__name__}.{name}")
+        value = getattr(importlib.import_module(_EXPORTS[name], __name__), name)
+        self.__dict__[name] = value
+        return value
+
+    def __setattr__(self, name, value):
+        # Python sets a subpackage as an attribute of its parent when it is first imported:
+        # ``jaximpact.wall_law`` stays the function, as it was before names were imported on
+        # first use (the subpackage is ``sys.modules["jaximpact.wall_law"]``).
+        if name in _EXPORTS and getattr(value, "__name__", None) == f"{__name__}.{name}":
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+    def __dir__(self):
+        return sorted({*super().__dir__(), *_EXPORTS})
+
+
+sys.modules[__name__].__class__ = _Package
 
 # JAX's persistent compilation cache on by default (``$JAXIMPACT_CACHE_DIR``, else the user
 # cache directory; ``JAXIMPACT_CACHE_DIR=off`` or a cache directory of the user's own keeps it

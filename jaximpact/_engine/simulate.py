@@ -13,7 +13,7 @@ from .._model.scene import Scene, SceneError, _is_concrete, check_impact
 from . import step_loop as step_loop
 from .batch import IMPLICIT_MAPPED_LANES as IMPLICIT_MAPPED_LANES
 from .batch import _batch_mesh, _lean_method
-from .devices import gathered, loop_kernels
+from .devices import compiled_alone, gathered, loop_kernels
 from .impact import CONTROLLED_STATES as CONTROLLED_STATES
 from .impact import T_MAX as T_MAX
 from .impact import _problem as _problem
@@ -180,8 +180,13 @@ def _simulate(
         group = max(group, next(n for n in SHARED_PROGRAM_LANES if n >= size))
     loop = default_loop(dtype) if loop is None else loop
     inputs, shards = _shard_over_devices(inputs, size, group)
-    chunk = _default_chunk(shards, dtype) if chunk is None else chunk
-    result = _simulate_flat(terms, cfg, *inputs, adjoint, chunk=chunk, shards=shards, loop=loop)
+    parts = _thread_parts(inputs, size, shards)
+    chunk = _default_chunk(max(shards, parts), dtype) if chunk is None else chunk
+    settings = dict(chunk=chunk, shards=shards, loop=loop)
+    if parts > 1:
+        result = _solve_in_threads(terms, cfg, inputs, adjoint, parts, group, settings)
+    else:
+        result = _simulate_flat(terms, cfg, *inputs, adjoint, **settings)
     if shards > 1:  # (concrete inputs only) sharded results cut and reshaped on one device
         result = gathered(result)
     result = jax.tree_util.tree_map(lambda x: x[:size], result)
@@ -275,3 +280,71 @@ def _shard_over_devices(inputs, size, group=1):
         lambda x: jax.device_put(jnp.pad(x, (0, pad), mode="edge"), sharding), inputs
     )
     return inputs, len(devices)
+
+
+# On a CPU with one XLA device (JAX's default), a concrete batch of more than this many impacts
+# is split into one part per core, each solved by the compiled program of its part from a
+# thread of its own: XLA runs one device's program on one core, and releases Python's lock
+# while it runs, so the parts run side by side. ``JAXIMPACT_CPU_THREADS=1`` turns it off
+# (``=N``: at most N parts). With ``use_all_cpu_cores()`` (a device per core) the batch is
+# sharded over the devices instead. BENCHMARKS.md, "Throughput".
+THREADED_LANES = SHARED_PROGRAM_LANES[-1]
+THREADS_ENV = "JAXIMPACT_CPU_THREADS"
+_THREAD_POOL: list = []  # the pool, made on first use
+_THREADED_PROGRAMS: set = set()  # the part programs that have run once (compiled)
+
+
+def cpu_threads() -> int:
+    """The threads a batch on one CPU device is split over: the usable cores, at most
+    ``$JAXIMPACT_CPU_THREADS``."""
+    import os
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    limit = os.environ.get(THREADS_ENV, "").strip()
+    return max(1, min(cores or 1, int(limit))) if limit.isdigit() else max(1, cores or 1)
+
+
+def _thread_parts(inputs, size, shards) -> int:
+    """Parts of the batch solved side by side in threads: one per core where the batch is
+    concrete, larger than :data:`THREADED_LANES` and on a single CPU device; else 1."""
+    if shards > 1 or size <= THREADED_LANES or jax.default_backend() != "cpu":
+        return 1
+    if len(jax.local_devices()) > 1 or not compiled_alone(inputs):
+        return 1
+    return min(cpu_threads(), size // (THREADED_LANES // 2))
+
+
+def _solve_in_threads(terms, cfg, inputs, adjoint, parts, group, settings):
+    """``_simulate_flat`` on ``parts`` contiguous equal parts of the (concrete) batch, each a
+    whole number of lane groups (the last padded with copies of the batch's last impact), run
+    side by side from a thread pool; the results concatenated in order. A lane's arithmetic
+    does not depend on its batch, so these are the bits of the batch solved in one program
+    (tests/test_threads.py). The first call of a part program runs its first part alone, so
+    that it is compiled once, not in every thread."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    size = inputs[1].shape[0]
+    pad = -size % (parts * group)
+    host = jax.tree_util.tree_map(lambda x: np.pad(np.asarray(x), (0, pad), mode="edge"), inputs)
+    width = (size + pad) // parts
+    pieces = [
+        jax.tree_util.tree_map(lambda x, i=i: jax.device_put(x[i * width : (i + 1) * width]), host)
+        for i in range(parts)
+    ]
+
+    def solve(piece):
+        return jax.device_get(_simulate_flat(terms, cfg, *piece, adjoint, **settings))
+
+    if not _THREAD_POOL:
+        _THREAD_POOL.append(ThreadPoolExecutor(cpu_threads(), thread_name_prefix="jaximpact"))
+    pool = _THREAD_POOL[0]
+    key = repr((terms, cfg, adjoint, sorted(settings.items()), width, str(inputs[1].dtype)))
+    key += repr(sorted(inputs[0]))
+    first = []
+    if key not in _THREADED_PROGRAMS:
+        first = [solve(pieces[0])]
+        _THREADED_PROGRAMS.add(key)
+    futures = [pool.submit(solve, piece) for piece in pieces[len(first) :]]
+    results = first + [f.result() for f in futures]
+    joined = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:size], *results)
+    return jax.device_put(joined)

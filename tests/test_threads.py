@@ -1,0 +1,100 @@
+"""A batch on one CPU device is split over the cores in threads (``_engine.simulate``), with
+the bits of the batch solved in one program; ``import jaximpact`` imports names on first use."""
+
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaximpact as ji
+from jaximpact._engine import simulate as sim
+
+FIELDS = ("status", "steps", "cor_n", "vt_out", "omega_out", "contact_time", "loss_friction")
+
+
+def columns(result):
+    return np.stack([np.asarray(getattr(result, k), float) for k in FIELDS])
+
+
+def test_thread_parts_only_for_large_concrete_batches_on_one_cpu_device(monkeypatch):
+    """One part per core (at most ``$JAXIMPACT_CPU_THREADS``) for a concrete batch above
+    ``THREADED_LANES`` on one CPU device; one part for a small batch, a batch sharded over
+    devices and traced inputs (under ``jit``, ``grad``, ``vmap``: the derivative paths)."""
+    monkeypatch.setattr(sim, "cpu_threads", lambda: 2)
+    big = sim.THREADED_LANES + 8
+    x = jnp.ones(big)
+    assert len(jax.local_devices()) == 1  # the tests run on one CPU device
+    assert sim._thread_parts((x,), big, 1) == 2
+    assert sim._thread_parts((x,), sim.THREADED_LANES, 1) == 1
+    assert sim._thread_parts((x,), big, 2) == 1
+    parts = []
+    jax.jit(lambda y: parts.append(sim._thread_parts((y,), big, 1)) or y)(x)
+    jax.grad(lambda y: parts.append(sim._thread_parts((y,), big, 1)) or y.sum())(x)
+    assert parts == [1, 1]
+    monkeypatch.undo()
+    monkeypatch.setenv(sim.THREADS_ENV, "1")
+    assert sim.cpu_threads() == 1 and sim._thread_parts((x,), big, 1) == 1
+
+
+@pytest.mark.slow  # compiles two programs of its own (about 15 s on 2 cores): CI's second step
+def test_threaded_batch_is_bitwise_the_batch_in_one_program_and_alone(table1, monkeypatch):
+    """A batch of 300 impacts (a capture among them) split over 2 threads: every output and
+    step count bitwise those of the same batch in one program and of each impact alone, at the
+    parts' boundary too."""
+    rng = np.random.default_rng(56)
+    n = 300
+    speed, angle = rng.uniform(0.5, 5.0, n), rng.uniform(-60.0, 60.0, n)
+    omega0 = rng.uniform(-2e4, 2e4, n)
+    speed[150] = 0.02
+    monkeypatch.setattr(sim, "cpu_threads", lambda: 2)
+    calls = []
+    threaded = sim._solve_in_threads
+    monkeypatch.setattr(sim, "_solve_in_threads", lambda *a: calls.append(a[4]) or threaded(*a))
+    batch = columns(ji.simulate(table1, speed, angle, omega0))
+    assert calls == [2]
+    assert batch[0, 150] == ji.Status.CAPTURED
+    monkeypatch.setattr(sim, "cpu_threads", lambda: 1)
+    one = columns(ji.simulate(table1, speed, angle, omega0))
+    assert calls == [2]
+    np.testing.assert_array_equal(batch, one)
+    for i in (0, 149, 150, 151, n - 1):
+        alone = columns(ji.simulate(table1, speed[i], angle[i], omega0[i]))
+        np.testing.assert_array_equal(alone, batch[:, i], err_msg=str(i))
+
+
+IMPORT_SCRIPT = """
+import json, sys
+import jaximpact as ji
+loaded = [m for m in ("diffrax", "equinox", "jaximpact.wall_law", "jaximpact._engine.simulate")
+          if m in sys.modules]
+import jaximpact.wall_law as wl
+out = {"loaded": loaded, "wall_law_is_function": callable(ji.wall_law) and wl is ji.wall_law}
+out["names"] = all(getattr(ji, name) is not None for name in ji.__all__)
+out["subpackage"] = ji.reference.__name__
+out["dir"] = set(ji.__all__) <= set(dir(ji))
+print(json.dumps(out))
+"""
+
+
+def test_import_leaves_the_solver_libraries_for_first_use():
+    """``import jaximpact`` imports neither diffrax, equinox, the engine nor the wall law; every
+    public name resolves on first use; ``jaximpact.wall_law`` stays the function after the
+    subpackage is imported; subpackages are attributes as before."""
+    proc = subprocess.run(
+        [sys.executable, "-c", IMPORT_SCRIPT],
+        capture_output=True, text=True, timeout=120, env={**os.environ},
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out == {
+        "loaded": [],
+        "wall_law_is_function": True,
+        "names": True,
+        "subpackage": "jaximpact.reference",
+        "dir": True,
+    }
