@@ -7,6 +7,8 @@ Run (each prints the Markdown of its part of BENCHMARKS.md, "Throughput"):
 
 - ``python benchmarks/run_all.py --only throughput`` (``run``): "By batch size and scene
   options", written into BENCHMARKS.md;
+- ``python benchmarks/throughput.py --defaults [--compare-with CHECKOUT ...]``: "As a notebook
+  runs it and as the command line runs it" (JAX's defaults against ``use_all_cpu_cores()``);
 - ``python benchmarks/throughput.py --paths``: "Default path and alternatives";
 - ``python benchmarks/throughput.py --profile``: "Where a lane-step's time goes";
 - ``python benchmarks/throughput.py --scipy-ratio``: "Compared with a scipy `solve_ivp` loop".
@@ -159,9 +161,15 @@ def rhs_cost(scene, speed, angle, omega0, steps):
     return float(np.median(times))
 
 
-def spawn(cfg, timeout=900):
+def spawn(cfg, timeout=900, tree=None):
+    """Run ``worker(cfg)`` in a fresh process; ``tree``: a checkout whose ``jaximpact`` it
+    imports (default: the installed one), at JAX's defaults (no ``XLA_FLAGS``)."""
     cmd = [sys.executable, str(HERE / "throughput.py"), "--worker", json.dumps(cfg)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    env = None
+    if tree:
+        env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PYTHONPATH")}
+        env["PYTHONPATH"] = str(tree)
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     rows = [json.loads(line[7:]) for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
     if proc.returncode != 0:
         print(proc.stderr[-2000:], file=sys.stderr)
@@ -451,6 +459,75 @@ def paths(n=20000, repeats=3, scan=(0, 512, 1024, 2048, 4096, 8192)):
     return "\n".join(md) + "\n", dict(paths=rows, scan=scan_res)
 
 
+DEFAULTS_TITLE = "As a notebook runs it and as the command line runs it"
+
+
+def defaults(n=20000, rounds=2, trees=()):
+    """Markdown of "As a notebook runs it and as the command line runs it": ``simulate`` of
+    ``n`` oblique spinning impacts at JAX's defaults (``import jaximpact`` and call, as a
+    notebook does) and with ``use_all_cpu_cores()`` (as the command line does), each in a fresh
+    process, the two back to back in every round; ``trees``: other checkouts measured in the
+    same rounds (before/after a change)."""
+    from _common import machine, measured_line, table
+
+    info = machine()
+    trees = [str(HERE.parent), *map(str, trees)]
+
+    def label(tree):
+        commit = subprocess.run(
+            ["git", "-C", tree, "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+        ).stdout.strip()
+        return "this checkout" if tree == trees[0] else f"{commit} ({tree})"
+
+    runs = {}
+    for _ in range(rounds):
+        for x64 in (True, False):
+            for tree in trees:
+                for kind in ("full", "full-cores"):
+                    load = os.getloadavg()[0]
+                    for r in spawn(dict(kind=kind, x64=x64, sizes=[n]), tree=tree):
+                        runs.setdefault((tree, x64, kind), []).append((r["rate"], load))
+    rows = []
+    for tree in trees:
+        for x64 in (True, False):
+            nb, cli = runs.get((tree, x64, "full"), []), runs.get((tree, x64, "full-cores"), [])
+            if not nb or not cli:
+                continue
+            ratios = [a[0] / b[0] for a, b in zip(nb, cli, strict=False)]
+            rows.append([
+                label(tree), "float64" if x64 else "float32",
+                f"{np.median([r for r, _ in nb]):,.0f}", f"{np.median([r for r, _ in cli]):,.0f}",
+                f"{np.median(ratios):.2f}",
+                ", ".join(f"{a[0]:,.0f} / {b[0]:,.0f}" for a, b in zip(nb, cli, strict=False)),
+                ", ".join(f"{a[1]:.1f} / {b[1]:.1f}" for a, b in zip(nb, cli, strict=False)),
+            ])  # fmt: skip
+    command = "python benchmarks/throughput.py --defaults" + (f" --n {n}" if n != 20000 else "")
+    md = [
+        f"### {DEFAULTS_TITLE}\n",
+        measured_line(info, command + "".join(f" --compare-with {t}" for t in trees[1:])),
+        f"`simulate` of {n:,} oblique spinning Table 1 impacts (0.5-5 m/s, -60..60 deg, |omega0| "
+        "<= 2e4 rad/s), each configuration in a fresh process, median of 3 warm calls. *notebook*: "
+        "`import jaximpact` and call, at JAX's defaults (one XLA CPU device); *CLI*: "
+        "`ji.use_all_cpu_cores()` first (a device per core, loop kernels), as the command line "
+        f"does. The two back to back in each of {rounds} rounds; *ratio*: the median of the "
+        "rounds' notebook / CLI ratios; load averages (1 min) at the start of each process.\n",
+        f"**{info['cpu']}, {info['cores']} cores**\n",
+        table(
+            [
+                "code",
+                "precision",
+                "notebook impacts/s",
+                "CLI impacts/s",
+                "ratio",
+                "rounds: notebook / CLI impacts/s",
+                "load: notebook / CLI",
+            ],
+            rows,
+        ),  # fmt: skip
+    ]
+    return "\n".join(md) + "\n", runs
+
+
 SCIPY_SETTINGS = [("LSODA", r) for r in (1e-8, 1e-9, 1e-10)]
 SCIPY_SETTINGS += [("RK45", r) for r in (1e-8, 1e-9, 1e-10)]
 SCIPY_SETTINGS += [("DOP853", r) for r in (1e-8, 1e-9, 1e-10, 1e-11)]
@@ -682,6 +759,15 @@ if __name__ == "__main__":
     ap.add_argument("--scipy-ratio-worker", help=argparse.SUPPRESS)
     ap.add_argument("--profile", action="store_true", help="where a lane-step's time goes")
     ap.add_argument("--profile-worker", help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--defaults",
+        action="store_true",
+        help="as a notebook runs it (JAX's defaults) against the command line's settings",
+    )
+    ap.add_argument(
+        "--compare-with", nargs="*", default=[], help="--defaults: other checkouts, same rounds"
+    )
+    ap.add_argument("--rounds", type=int, default=2, help="--defaults: rounds")
     ap.add_argument("--n", type=int, default=20000, help="batch size")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
@@ -707,6 +793,8 @@ if __name__ == "__main__":
         print(text)
         command = f"python benchmarks/throughput.py --scipy-ratio --n {args.n}"
         write_result("throughput_scipy_ratio", data, info, command)
+    elif args.defaults:
+        print(defaults(args.n, args.rounds, args.compare_with)[0])
     elif args.paths:
         info = machine()
         text, data = paths(args.n, args.repeats)
@@ -714,4 +802,4 @@ if __name__ == "__main__":
         command = f"python benchmarks/throughput.py --paths --n {args.n}"
         write_result("throughput_paths", data, info, command)
     else:
-        ap.error("give --paths, --profile or --scipy-ratio")
+        ap.error("give --defaults, --paths, --profile or --scipy-ratio")
