@@ -110,6 +110,19 @@ def test_slow_elastic_exits_keep_their_energy():
         assert np.all(np.asarray(res.loss_hertz_damping) == 0.0)
 
 
+def test_capture_in_the_first_step_is_seen():
+    """An adhesion far stronger than the impact (w = 1e3 J/m^2 on r = 10 nm: the adhesion speed
+    is 8 km/s) captures the sphere within the solver's first step, as the reference says. The
+    event function started at 0 (the overlap at the floor), so that step's fall below zero
+    was no crossing, and the solve ran to max_steps."""
+    scene = dmt_scene(w=1e3).replace(particle={"radius": 1e-8})
+    res = ji.simulate(scene, [1e-4, 1e-2], 0.0, 0.0)
+    assert list(res.status_names) == ["captured", "captured"]
+    assert np.all(np.asarray(res.steps) < 20)
+    p = ref.table1_params(normal="dmt", w=1e3, f0=0.0, radius=1e-8)
+    assert ref.simulate_impact(p, 1e-4, 0.0, 0.0).status == "captured"
+
+
 @pytest.mark.slow  # two programs (JKR's w = 0 runs by default)
 def test_zero_work_of_adhesion_is_the_hertz_law():
     """``w = 0`` compiles no adhesion, and gives the Brach-Dunn law without adhesion exactly."""

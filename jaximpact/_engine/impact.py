@@ -107,8 +107,12 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
             return jnp.where(_jkr_stuck(terms, args), JKR_STUCK_TIME - t, free)
 
     elif terms.adhesion:
+        # The step loops see an event where the function goes from > 0 to <= 0 across a step;
+        # the overlap starts at the floor (0), so a capture inside the first step (an adhesion
+        # far stronger than the impact: DMT with w = 1e3 J/m^2, r = 1e-8 m at 1e-4 m/s) went
+        # unseen and the solve ran to max_steps. At t = 0 the separation term is 1 instead.
         cond = lambda t, y, args, **kw: jnp.minimum(  # noqa: E731
-            y["n"] - floor, dyn.capture_margin(terms, args, y)
+            jnp.where(t > 0, y["n"] - floor, 1.0), dyn.capture_margin(terms, args, y)
         )
     else:  # without adhesion the normal energy cannot fall below zero
         cond = lambda t, y, args, **kw: y["n"] - floor  # noqa: E731
