@@ -84,3 +84,9 @@ sys.modules[__name__].__class__ = _Package
 from ._io.cache import enable_default_cache as _enable_default_cache  # noqa: E402
 
 _enable_default_cache()
+
+# Step loops compiled as single kernels where JAX's backends have not started and nobody chose
+# XLA's loop options (``JAXIMPACT_XLA_OPTIONS=off`` leaves them alone): ``_engine.devices``.
+from ._engine.devices import loop_kernels_at_import as _loop_kernels_at_import  # noqa: E402
+
+_loop_kernels_at_import()

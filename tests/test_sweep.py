@@ -153,6 +153,7 @@ def test_chunks_solved_as_simulate_solves_them_compile_once(tmp_path, monkeypatc
     import jaximpact._engine.simulate as simulate_module
 
     monkeypatch.setattr(simulate_module, "CHUNK_ONE_DEVICE", 16)
+    monkeypatch.setattr(simulate_module, "CHUNK_LOOP_KERNEL", 16)  # (set by import jaximpact)
     # Normal impacts without adhesion: a small program of its own (no other test compiles it).
     defaults = {"speed": 1.0, "angle_deg": 0.0, "omega0": 0.0}
     scene = ji.load_scene().replace(contact={"f0": 0.0})

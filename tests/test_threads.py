@@ -98,3 +98,63 @@ def test_import_leaves_the_solver_libraries_for_first_use():
         "subpackage": "jaximpact.reference",
         "dir": True,
     }
+
+
+XLA_SCRIPT = """
+import json, os, sys
+import jax
+if sys.argv[1] == "started":
+    jax.numpy.zeros(1)  # the backend is running before jaximpact is imported
+import jaximpact as ji
+if sys.argv[1] == "all cores":
+    ji.use_all_cpu_cores(2)
+from jaximpact._engine import devices
+out = {"flags": os.environ.get("XLA_FLAGS", ""), "loop_kernels": devices.loop_kernels()}
+out["unfused"] = "xla_disable_hlo_passes" in devices.compiler_options(throughput=True)
+out["devices"] = len(jax.devices())
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.parametrize(
+    "case, env",
+    [
+        ("plain", {}),
+        ("off", {"JAXIMPACT_XLA_OPTIONS": "off"}),
+        ("user", {"XLA_FLAGS": "--xla_backend_extra_options=xla_cpu_disable_loop_unrolling=false"}),
+        ("started", {}),
+        ("all cores", {}),
+        (
+            "child",
+            {
+                "XLA_FLAGS": "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold"
+                "=8388608,xla_cpu_disable_loop_unrolling=true",
+                "JAXIMPACT_XLA_OPTIONS": "set-by-import",
+            },
+        ),
+    ],
+)
+def test_import_sets_loop_kernels_only_where_nobody_chose(case, env):
+    """``import jaximpact`` adds the loop-kernel options to ``XLA_FLAGS`` (one device, fused
+    programs) where JAX's backend has not started, the user set neither option and
+    ``JAXIMPACT_XLA_OPTIONS`` is not ``off``; ``use_all_cpu_cores()`` after it gives the
+    command line's settings (a device per core, unfused throughput programs)."""
+    base = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAXIMPACT_XLA_OPTIONS")}
+    proc = subprocess.run(
+        [sys.executable, "-c", XLA_SCRIPT, case],
+        capture_output=True, text=True, timeout=120, env={**base, **env},
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    threshold = "xla_cpu_small_while_loop_byte_threshold=8388608"
+    if case == "plain":
+        assert threshold in out["flags"] and out["loop_kernels"]
+        assert not out["unfused"] and out["devices"] == 1
+    elif case == "child":  # the parent's import set the options: the same programs
+        assert out["flags"] == env["XLA_FLAGS"] and out["loop_kernels"] and not out["unfused"]
+    elif case in ("off", "started"):
+        assert out["flags"] == "" and not out["loop_kernels"] and not out["unfused"]
+    elif case == "user":
+        assert out["flags"] == env["XLA_FLAGS"] and not out["loop_kernels"]
+    else:
+        assert threshold in out["flags"] and out["unfused"] and out["devices"] == 2

@@ -20,6 +20,51 @@ _LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
 _UNROLL_OPTION = "xla_cpu_disable_loop_unrolling"
 
 
+#: ``import jaximpact`` adds the loop-kernel options to ``XLA_FLAGS`` where JAX's backends have
+#: not started (:func:`loop_kernels_at_import`); this environment variable set to ``off``
+#: leaves XLA's settings as they are.
+XLA_OPTIONS_ENV = "JAXIMPACT_XLA_OPTIONS"
+_OFF = ("off", "0", "false", "no", "none")
+_SET = "set-by-import"  # its value where an import set the options (read by child processes)
+_BY_IMPORT: list = []  # [True] where import set the options
+_ALL_CORES: list = []  # [True] after use_all_cpu_cores(loop_kernels=True)
+
+
+def loop_kernels_at_import() -> bool:
+    """Loop kernels (:func:`_with_loop_kernels`) for the process, where JAX's backends have not
+    started, ``XLA_FLAGS`` names neither option (the user's choice is kept) and
+    ``$JAXIMPACT_XLA_OPTIONS`` is not ``off``: called by ``import jaximpact``. A notebook's
+    ``simulate`` then runs its threads' step loops as single kernels (about 1.6x the rate on
+    2 cores; BENCHMARKS.md, "As a notebook runs it and as the command line runs it", which
+    also measures other JAX code with and without them). The options apply to every while
+    loop of the process whose iteration touches less than 8 MiB (it then runs on one core)
+    and turn LLVM's loop unrolling off; the device count is left alone. Said once, at INFO
+    level of the ``jaximpact`` logger. **Returns:** whether it set them."""
+    if os.environ.get(XLA_OPTIONS_ENV, "").strip().lower() in _OFF:
+        return False
+    flags = os.environ.get("XLA_FLAGS", "")
+    if _LOOP_OPTION in flags or _UNROLL_OPTION in flags:
+        return False
+    from jax._src import xla_bridge
+
+    if getattr(xla_bridge, "_backends", None):
+        return False
+    os.environ["XLA_FLAGS"] = _with_loop_kernels(flags).strip()
+    # (child processes inherit XLA_FLAGS: this tells them the options are the import's, so
+    # that they compile the programs this one does)
+    os.environ[XLA_OPTIONS_ENV] = _SET
+    _BY_IMPORT.append(True)
+    import logging
+
+    logging.getLogger("jaximpact").info(
+        "jaximpact added %s to XLA_FLAGS (while loops under 8 MiB per iteration compiled as "
+        "single kernels); %s=off before the import leaves XLA's settings alone",
+        _LOOP_OPTION,
+        XLA_OPTIONS_ENV,
+    )
+    return True
+
+
 def use_all_cpu_cores(count: int | None = None, *, loop_kernels: bool = True) -> int:
     """Ask XLA for one CPU device per core, so batches are split over all cores.
 
@@ -54,6 +99,7 @@ def use_all_cpu_cores(count: int | None = None, *, loop_kernels: bool = True) ->
     flags = f"{flags} --xla_force_host_platform_device_count={count}"
     if loop_kernels:
         flags = _with_loop_kernels(flags)
+        _ALL_CORES.append(True)
     os.environ["XLA_FLAGS"] = flags.strip()
     return count
 
@@ -94,16 +140,28 @@ WIDE_VECTORS = {"xla_cpu_prefer_vector_width": 512}
 
 def compiler_options(throughput: bool = False) -> dict:
     """XLA options for the engine's compiled programs in this process: 512-bit vectors on a
-    CPU; with loop kernels, a ``throughput`` program (unrolled stages, values only) also
-    without fusion. Call it where the program is built (it starts JAX's backend)."""
+    CPU; with loop kernels that the user asked for (:func:`unfused_programs`), a
+    ``throughput`` program (unrolled stages, values only) also without fusion. Call it where
+    the program is built (it starts JAX's backend)."""
     import jax
 
     if jax.default_backend() != "cpu":
         return {}
     options = dict(WIDE_VECTORS)
-    if throughput and loop_kernels():
+    if throughput and unfused_programs():
         options.update(UNFUSED)
     return options
+
+
+def unfused_programs() -> bool:
+    """Whether the throughput program is compiled without fusion: with loop kernels that the
+    user asked for (``use_all_cpu_cores()``, ``XLA_FLAGS``), not those that ``import
+    jaximpact`` set: fused, a notebook's first ``simulate`` of 3 impacts compiled in 7.0 s
+    against 10.0-10.6 s unfused (8.0-9.4 s without loop kernels), for 0.8-0.9x the unfused
+    rate on 20,000 impacts (BENCHMARKS.md, "As a notebook runs it and as the command line runs
+    it")."""
+    by_import = _BY_IMPORT or os.environ.get(XLA_OPTIONS_ENV) == _SET
+    return loop_kernels() and (not by_import or bool(_ALL_CORES))
 
 
 def engine_jit(fn, **kwargs):
