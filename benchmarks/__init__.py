@@ -38,6 +38,7 @@ QUICK = {
     "work_precision": (["--quick"], "minutes; run_all.py --quick --only work_precision"),
     "stability": (["--quick"], "minutes; run_all.py --quick --only stability"),
     "first_result": (["--only", "simulate 3"], "20 s on 2 loaded cores; one entry point"),
+    "xla_options": (["--rounds", "1"], "not timed; two processes"),
     "loop_kernels": (["--n", "1000", "--repeats", "1"], "not timed; six processes compiling"),
     "isa_comparison": (
         ["--n", "1000", "--repeats", "1", "--rounds", "1", "--precisions", "float64"],

@@ -525,7 +525,7 @@ def defaults(n=20000, rounds=2, trees=()):
             rows,
         ),  # fmt: skip
     ]
-    return "\n".join(md) + "\n", runs
+    return "\n".join(md) + "\n", {"rows": rows, "trees": trees}
 
 
 SCIPY_SETTINGS = [("LSODA", r) for r in (1e-8, 1e-9, 1e-10)]
@@ -794,7 +794,11 @@ if __name__ == "__main__":
         command = f"python benchmarks/throughput.py --scipy-ratio --n {args.n}"
         write_result("throughput_scipy_ratio", data, info, command)
     elif args.defaults:
-        print(defaults(args.n, args.rounds, args.compare_with)[0])
+        info = machine()
+        text, data = defaults(args.n, args.rounds, args.compare_with)
+        print(text)
+        command = f"python benchmarks/throughput.py --defaults --n {args.n}"
+        write_result("throughput_defaults", data, info, command)
     elif args.paths:
         info = machine()
         text, data = paths(args.n, args.repeats)

@@ -96,7 +96,7 @@ def spawn(options: bool) -> dict:
 
 def measure(rounds: int) -> str:
     import numpy as np
-    from _common import machine, measured_line, table
+    from _common import machine, measured_line, table, write_result
 
     info = machine()
     runs = {False: [], True: []}
@@ -110,7 +110,7 @@ def measure(rounds: int) -> str:
         without = float(np.median([r[case] for r in runs[False]]))
         with_ = float(np.median([r[case] for r in runs[True]]))
         rows.append([about, f"{without * 1e3:.1f}", f"{with_ * 1e3:.1f}", f"{with_ / without:.2f}"])
-    return (
+    text = (
         "### Other JAX code with the options `import jaximpact` sets\n\n"
         + measured_line(info, COMMAND + (f" --rounds {rounds}" if rounds != 2 else ""))
         + f"\nEach program in a fresh process that does not import jaximpact, without and with "
@@ -122,6 +122,9 @@ def measure(rounds: int) -> str:
         + table(["program", "without ms", "with ms", "ratio"], rows)
         + "\n"
     )
+    figures = {"rows": rows, "runs": {"without": runs[False], "with": runs[True]}, "loads": loads}
+    write_result("xla_options", figures, info, COMMAND)
+    return text
 
 
 def main():
