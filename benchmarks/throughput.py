@@ -502,12 +502,14 @@ def defaults(n=20000, rounds=2, trees=()):
                 ", ".join(f"{a[1]:.1f} / {b[1]:.1f}" for a, b in zip(nb, cli, strict=False)),
             ])  # fmt: skip
     command = "python benchmarks/throughput.py --defaults" + (f" --n {n}" if n != 20000 else "")
+    command += f" --rounds {rounds}" if rounds != 2 else ""
     md = [
         f"### {DEFAULTS_TITLE}\n",
         measured_line(info, command + "".join(f" --compare-with {t}" for t in trees[1:])),
         f"`simulate` of {n:,} oblique spinning Table 1 impacts (0.5-5 m/s, -60..60 deg, |omega0| "
         "<= 2e4 rad/s), each configuration in a fresh process, median of 3 warm calls. *notebook*: "
-        "`import jaximpact` and call, at JAX's defaults (one XLA CPU device); *CLI*: "
+        "`import jaximpact` and call, at JAX's defaults (one XLA CPU device, with what the "
+        "import sets where nothing else did); *CLI*: "
         "`ji.use_all_cpu_cores()` first (a device per core, loop kernels), as the command line "
         f"does. The two back to back in each of {rounds} rounds; *ratio*: the median of the "
         "rounds' notebook / CLI ratios; load averages (1 min) at the start of each process.\n",
