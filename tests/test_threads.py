@@ -106,12 +106,13 @@ import jax
 if sys.argv[1] == "started":
     jax.numpy.zeros(1)  # the backend is running before jaximpact is imported
 import jaximpact as ji
-if sys.argv[1] == "all cores":
-    ji.use_all_cpu_cores(2)
+if sys.argv[1].startswith("all cores"):
+    ji.use_all_cpu_cores(2, loop_kernels=sys.argv[1] == "all cores")
 from jaximpact._engine import devices
 out = {"flags": os.environ.get("XLA_FLAGS", ""), "loop_kernels": devices.loop_kernels()}
 out["unfused"] = "xla_disable_hlo_passes" in devices.compiler_options(throughput=True)
 out["devices"] = len(jax.devices())
+out["marker"] = os.environ.get("JAXIMPACT_XLA_OPTIONS")
 print(json.dumps(out))
 """
 
@@ -124,6 +125,7 @@ print(json.dumps(out))
         ("user", {"XLA_FLAGS": "--xla_backend_extra_options=xla_cpu_disable_loop_unrolling=false"}),
         ("started", {}),
         ("all cores", {}),
+        ("all cores without loop kernels", {}),
         (
             "child",
             {
@@ -149,12 +151,16 @@ def test_import_sets_loop_kernels_only_where_nobody_chose(case, env):
     threshold = "xla_cpu_small_while_loop_byte_threshold=8388608"
     if case == "plain":
         assert threshold in out["flags"] and out["loop_kernels"]
-        assert not out["unfused"] and out["devices"] == 1
+        assert not out["unfused"] and out["devices"] == 1 and out["marker"] == "set-by-import"
     elif case == "child":  # the parent's import set the options: the same programs
         assert out["flags"] == env["XLA_FLAGS"] and out["loop_kernels"] and not out["unfused"]
     elif case in ("off", "started"):
         assert out["flags"] == "" and not out["loop_kernels"] and not out["unfused"]
     elif case == "user":
         assert out["flags"] == env["XLA_FLAGS"] and not out["loop_kernels"]
-    else:
+    elif case == "all cores":  # child processes then compile as this one: unfused
         assert threshold in out["flags"] and out["unfused"] and out["devices"] == 2
+        assert out["marker"] is None
+    else:
+        assert out["flags"] == "--xla_force_host_platform_device_count=2"
+        assert not out["loop_kernels"] and out["devices"] == 2 and out["marker"] is None

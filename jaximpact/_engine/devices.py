@@ -26,7 +26,7 @@ _UNROLL_OPTION = "xla_cpu_disable_loop_unrolling"
 XLA_OPTIONS_ENV = "JAXIMPACT_XLA_OPTIONS"
 _OFF = ("off", "0", "false", "no", "none")
 _SET = "set-by-import"  # its value where an import set the options (read by child processes)
-_BY_IMPORT: list = []  # [True] where import set the options
+_BY_IMPORT: list = []  # [XLA_FLAGS before] where import set the options
 _ALL_CORES: list = []  # [True] after use_all_cpu_cores(loop_kernels=True)
 
 
@@ -53,7 +53,7 @@ def loop_kernels_at_import() -> bool:
     # (child processes inherit XLA_FLAGS: this tells them the options are the import's, so
     # that they compile the programs this one does)
     os.environ[XLA_OPTIONS_ENV] = _SET
-    _BY_IMPORT.append(True)
+    _BY_IMPORT.append(flags)
     import logging
 
     logging.getLogger("jaximpact").info(
@@ -93,9 +93,14 @@ def use_all_cpu_cores(count: int | None = None, *, loop_kernels: bool = True) ->
             "(set XLA_FLAGS=--xla_force_host_platform_device_count=N in the environment instead)"
         )
     count = count or len(os.sched_getaffinity(0))
-    flags = re.sub(
-        r"--xla_force_host_platform_device_count=\d+", "", os.environ.get("XLA_FLAGS", "")
-    )
+    flags = os.environ.get("XLA_FLAGS", "")
+    if os.environ.get(XLA_OPTIONS_ENV) == _SET:
+        # the options are now the caller's (child processes compile as this one), and
+        # without loop kernels the flags from before the import's options
+        del os.environ[XLA_OPTIONS_ENV]
+        if _BY_IMPORT and not loop_kernels:
+            flags = _BY_IMPORT[0]
+    flags = re.sub(r"--xla_force_host_platform_device_count=\d+", "", flags)
     flags = f"{flags} --xla_force_host_platform_device_count={count}"
     if loop_kernels:
         flags = _with_loop_kernels(flags)
