@@ -92,30 +92,7 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
         for k in ("vt", "w", "w2"):
             if k in y0:
                 y0[k] = entry_friction[k]
-    # One scalar event (diffrax's root find over several events solves a least-squares problem
-    # whose rounding depends on the batch): the overlap reaches the contact floor
-    # (separation), or, with adhesion, the normal energy reaches zero (capture; scaled to
-    # order one by ``capture_margin`` so that the root finder's tolerance is meaningful).
-    if terms.jkr:
-        # Below the elastic sticking speed the sphere cannot climb the snap-off barrier even
-        # without losses: captured at first touch (the event fires at JKR_STUCK_TIME).
-        def cond(t, y, args, **kw):
-            free = jnp.minimum(
-                y["n"] - dyn.separation(terms, args, y.get("peak")),
-                dyn.capture_margin(terms, args, y),
-            )
-            return jnp.where(_jkr_stuck(terms, args), JKR_STUCK_TIME - t, free)
-
-    elif terms.adhesion:
-        # The step loops see an event where the function goes from > 0 to <= 0 across a step;
-        # the overlap starts at the floor (0), so a capture inside the first step (an adhesion
-        # far stronger than the impact: DMT with w = 1e3 J/m^2, r = 1e-8 m at 1e-4 m/s) went
-        # unseen and the solve ran to max_steps. At t = 0 the separation term is 1 instead.
-        cond = lambda t, y, args, **kw: jnp.minimum(  # noqa: E731
-            jnp.where(t > 0, y["n"] - floor, 1.0), dyn.capture_margin(terms, args, y)
-        )
-    else:  # without adhesion the normal energy cannot fall below zero
-        cond = lambda t, y, args, **kw: y["n"] - floor  # noqa: E731
+    cond = _event_condition(terms, floor)
     # Event times to ~1e-10 Hertz times in float64: tighter chases rounding noise in E (a
     # difference of large terms when adhesion dominates a slow impact) and the root find would
     # not converge. float32: 1000 ulp (1.2e-4), where 100 ulp left Newton failing on 20 of
@@ -151,6 +128,35 @@ def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg,
         entry_friction,
         w2 if terms.target else None,
     )
+
+
+def _event_condition(terms: dyn.Terms, floor):
+    """The event function ``(t, y, args) -> scalar``, decreasing through zero at the end."""
+    # One scalar event (diffrax's root find over several events solves a least-squares problem
+    # whose rounding depends on the batch): the overlap reaches the contact floor
+    # (separation), or, with adhesion, the normal energy reaches zero (capture; scaled to
+    # order one by ``capture_margin`` so that the root finder's tolerance is meaningful).
+    if terms.jkr:
+        # Below the elastic sticking speed the sphere cannot climb the snap-off barrier even
+        # without losses: captured at first touch (the event fires at JKR_STUCK_TIME).
+        def cond(t, y, args, **kw):
+            free = jnp.minimum(
+                y["n"] - dyn.separation(terms, args, y.get("peak")),
+                dyn.capture_margin(terms, args, y),
+            )
+            return jnp.where(_jkr_stuck(terms, args), JKR_STUCK_TIME - t, free)
+
+    elif terms.adhesion:
+        # The step loops see an event where the function goes from > 0 to <= 0 across a step;
+        # the overlap starts at the floor (0), so a capture inside the first step (an adhesion
+        # far stronger than the impact: DMT with w = 1e3 J/m^2, r = 1e-8 m at 1e-4 m/s) went
+        # unseen and the solve ran to max_steps. At t = 0 the separation term is 1 instead.
+        cond = lambda t, y, args, **kw: jnp.minimum(  # noqa: E731
+            jnp.where(t > 0, y["n"] - floor, 1.0), dyn.capture_margin(terms, args, y)
+        )
+    else:  # without adhesion the normal energy cannot fall below zero
+        cond = lambda t, y, args, **kw: y["n"] - floor  # noqa: E731
+    return cond
 
 
 def _solve_one(

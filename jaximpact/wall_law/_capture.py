@@ -51,14 +51,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._engine.simulate import scene_parameters
-from .._model.scene import SceneError
 from ..parameters import with_parameters
+from ._checks import SPEED_MAX as SPEED_MAX
+from ._checks import _checked_concrete, _checked_options, _is_concrete
+from ._lanes import IMPLICIT_METHOD, _Lanes
 
 __all__ = ["CaptureSpeed", "CaptureStatus", "adhesion_speed", "capture_speed", "scene_with"]
 
 SCAN_POINTS = 19  # three per decade over six decades of v / v_a
 SCAN_RANGE = (1e-3, 1e3)  # in units of the adhesion speed v_a
-SPEED_MAX = 1000.0  # m/s, the top of the speed range (docs/input_ranges.md)
 RTOL = 1e-9  # relative tolerance of the root
 MAX_ITERATIONS = 40
 EPS = 1e-4  # relative offset above v_c of the derivative points (Richardson to v_c)
@@ -169,10 +170,6 @@ def _margin(scene, params, speed, angle_deg, omega0):
     return (res.vn_out / speed) ** 2, res.status
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
 def capture_speed(
     scene, angle_deg=0.0, omega0=0.0, *, rtol: float = RTOL, speed_range=None
 ) -> CaptureSpeed:
@@ -243,41 +240,6 @@ def capture_speed(
         implicit=solvers[-1][0] if solvers else 0,
         retried=solvers[-1][1] if solvers else 0,
     )
-
-
-def _checked_options(scene, rtol, speed_range):
-    """``capture_speed``'s scene and options checked (``SceneError``); the speed range as
-    floats."""
-    if scene.target is not None:  # the scan and the margin are those of a wall
-        raise SceneError(
-            "capture_speed is the capture of impacts on a wall; the scene has a [target] "
-            "sphere (remove it)"
-        )
-    if not 0 < rtol < 1e-2:
-        raise SceneError(f"rtol must be in (0, 0.01), got {rtol!r}")
-    if speed_range is not None:
-        lo, hi = (float(x) for x in speed_range)
-        if not 0 < lo < hi <= SPEED_MAX:
-            raise SceneError(f"speed_range must satisfy 0 < lo < hi <= {SPEED_MAX:g} m/s")
-        speed_range = (lo, hi)
-    return speed_range
-
-
-def _checked_concrete(values, angle, omega) -> tuple[np.ndarray, np.ndarray]:
-    """The search's inputs checked concrete and in range (``SceneError``); the angle and spin
-    as numpy arrays."""
-    leaves = [*values, angle, omega]
-    if not all(_is_concrete(x) for x in leaves):
-        raise SceneError(
-            "capture_speed needs concrete values: call it outside jax.jit and jax.vmap "
-            "(jax.grad, jax.jacfwd and jax.jvp work; pass arrays to batch)"
-        )
-    a, w = np.asarray(angle, dtype=float), np.asarray(omega, dtype=float)
-    if not np.all(np.isfinite(a) & (np.abs(a) < 90.0)):
-        raise SceneError("angle_deg must be finite and in (-90, 90) deg")
-    if not np.all(np.isfinite(w) & (np.abs(w) <= 1e9)):
-        raise SceneError("omega0 must be finite and in [-1e9, 1e9] rad/s")
-    return a, w
 
 
 def _remembered_search(scene, names, values, a, w, adhesive, rtol, speed_range) -> dict:
@@ -410,92 +372,6 @@ def _root(simulate, scene, params, angle, omega, rtol, speed_range, grid=None) -
         "implicit": lanes.method == IMPLICIT_METHOD,
         "retried": lanes.retried,
     }
-
-
-# The solvers of ``method = "auto"`` (``_engine.settings.integration_settings``).
-IMPLICIT_METHOD, EXPLICIT_METHOD = "kvaerno5", "tsit5"
-
-
-def _settings_stiff(scene, dtype) -> bool:
-    """The part of the engine's ``auto`` rule that the settings alone decide
-    (``integration_settings``): a slip width below 30 rtol takes the implicit solver."""
-    from .._engine.solvers import default_slip_width, default_tolerances
-
-    rtol, _ = default_tolerances(dtype, scene.solver.rtol, scene.solver.atol)
-    return default_slip_width(dtype, scene.solver.slip_width, rtol) < 30 * rtol
-
-
-@jax.jit
-def _lane_stiffness(params, speed, angle):
-    """The engine's stiffness estimate of each lane (``stiffness_estimate``, per lane)."""
-    from .._engine.settings import stiffness_estimate
-
-    return jax.vmap(stiffness_estimate)(params, speed, angle)
-
-
-class _Lanes:
-    """The search's impacts, each lane on one solver throughout its search.
-
-    With ``solver.method = "auto"`` the engine picks the solver per call, for the whole batch,
-    from the stiffness of the impacts at hand; a search calls it at speeds spread over six
-    decades, so a lane's solver changed from one call to the next with its speed and with the
-    other lanes' (and the implicit one, near a lane's capture speed, put the threshold
-    elsewhere). Here each lane's solver is chosen once, by the engine's own rule
-    (``integration_settings``: the settings, then the stiffness estimate against
-    ``solver.stiffness_limit``) applied to the lane alone at the lowest and the highest speed
-    of its scan (the estimate grows or falls monotonically with the speed): implicit if either
-    is judged stiff. A lane whose impact still reaches ``max_steps`` on its solver moves to
-    the other one for the rest of its search (once), that impact run again (``retried``): the
-    estimate is an estimate (2 of 200 random Brach-Dunn scenes reached it on Tsit5), and
-    Kvaerno5 reached it on every impact of some overdamped JKR scenes that Tsit5 captures in
-    at most 77 steps (4 of 200). Each solver's lanes run as one batch, padded to a power
-    of two lanes so that a move seldom compiles a new program. Other methods than ``auto``:
-    every lane on the scene's method, as before."""
-
-    def __init__(self, simulate, scene, params, angle, omega, grid):
-        self.simulate, self.scene, self.params = simulate, scene, params
-        self.angle, self.omega = angle, omega
-        n = angle.size
-        self.retried = np.zeros(n, bool)
-        if scene.solver.method != "auto":
-            self.method = np.full(n, None, dtype=object)
-            return
-        dtype = jnp.result_type(float)
-        lanes = {k: jnp.asarray(v, dtype) for k, v in params.items()}
-        stiff = np.full(n, _settings_stiff(scene, dtype))
-        for k in (0, -1):  # each lane's stiffness at each end of its scan
-            rate = _lane_stiffness(lanes, jnp.asarray(grid[:, k], dtype), jnp.asarray(angle, dtype))
-            stiff |= np.asarray(rate) > scene.solver.stiffness_limit
-        self.method = np.where(stiff, IMPLICIT_METHOD, EXPLICIT_METHOD).astype(object)
-
-    def _run_group(self, method, lanes, v):
-        """Statuses and ``vn_out`` of ``lanes`` at speeds ``v`` (all lanes' speeds)."""
-        size = 1 << max(1, int(lanes.size - 1).bit_length())  # a power of two, >= 2
-        pad = np.concatenate([lanes, np.full(size - lanes.size, lanes[-1])])
-        sub = scene_with(self.scene, {k: x[pad] for k, x in self.params.items()})
-        res = self.simulate(sub, v[pad], self.angle[pad], self.omega[pad], method=method)
-        return np.asarray(res.status)[: lanes.size], np.asarray(res.vn_out)[: lanes.size]
-
-    def run(self, v):
-        """``(status, q)`` of every lane at its speed ``v``: ``q = vn_out^2`` of a rebound
-        (the secant works on the energies: nearly linear near v_c, where the adhesive loss
-        hardly changes with the speed), NaN otherwise."""
-        n = v.size
-        st, vn = np.empty(n, int), np.full(n, np.nan)
-        todo = np.ones(n, bool)
-        while todo.any():
-            for method in dict.fromkeys(self.method[todo]):
-                lanes = np.flatnonzero(todo & (self.method == method))
-                st[lanes], vn[lanes] = self._run_group(method, lanes, v)
-            todo[:] = False
-            if self.scene.solver.method == "auto":
-                stuck = ~self.retried & (st == 2)  # Status.MAX_STEPS, on the lane's first solver
-                self.method[stuck] = np.where(
-                    self.method[stuck] == IMPLICIT_METHOD, EXPLICIT_METHOD, IMPLICIT_METHOD
-                )
-                self.retried |= stuck
-                todo = stuck
-        return st, np.where(st == 0, vn**2, np.nan)
 
 
 def _secant_search(run, grid, g_scan, top, active, status, rtol) -> tuple:
