@@ -38,6 +38,8 @@ QUICK = {
     "work_precision": (["--quick"], "minutes; run_all.py --quick --only work_precision"),
     "stability": (["--quick"], "minutes; run_all.py --quick --only stability"),
     "first_result": (["--only", "simulate 3"], "20 s on 2 loaded cores; one entry point"),
+    "capture_speed_statuses": (["--scenes", "3"], "not timed; three scenes per law"),
+    "dmt_slow_exits": "none: the whole run is about 20 s",
     "xla_options": (["--rounds", "1"], "not timed; two processes"),
     "loop_kernels": (["--n", "1000", "--repeats", "1"], "not timed; six processes compiling"),
     "isa_comparison": (

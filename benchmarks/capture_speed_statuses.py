@@ -30,6 +30,7 @@ import json
 import math
 import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -37,6 +38,10 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import jaximpact as ji  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import machine, write_result  # noqa: E402
+
 import jaximpact._engine.api as api  # noqa: E402
 from jaximpact import reference as ref  # noqa: E402
 from jaximpact.parameters import PARAMETERS  # noqa: E402
@@ -195,6 +200,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=57)
     ap.add_argument("--json", default=None, help="write the rows here too")
     args = ap.parse_args(argv)
+    info = machine()
     rows = []
     for law in args.laws.split(","):
         row = run_law(law, args.scenes, args.seed, args.ranges)
@@ -205,6 +211,12 @@ def main(argv=None):
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+    command = "python benchmarks/capture_speed_statuses.py " + " ".join(argv or sys.argv[1:])
+    write_result(
+        "capture_speed_statuses",
+        {"scenes": args.scenes, "ranges": args.ranges, "seed": args.seed, "laws": rows},
+        info, command.strip(),
+    )  # fmt: skip
     bad = sum(r["failed_where_decided"] for r in rows)
     return 1 if bad else 0
 
