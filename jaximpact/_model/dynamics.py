@@ -226,14 +226,17 @@ def balanced_normal_energy(terms: Terms, p: ScaledParameters, y):
     """The normal energy from the energy balance, ``1/2`` less the Hertzian damping's loss
     (the entry shell's, ``C_H V_H(floor)``, and the solve's ledger), where that is the only
     force on the normal motion that is not conservative: the DMT law (its adhesion is not
-    damped) with the rigid tangential law. ``None`` elsewhere, or without the ledger.
+    damped) with the rigid tangential law and some adhesion. ``None`` elsewhere (``w = 0`` is
+    the Hertz law, computed as the Brach-Dunn law without adhesion is), or without the ledger.
 
     Far below the adhesion speed the well is deep in Hertz units (``~(v_ad/v)^2``) and
     ``ndot^2/2 + V(n)`` is a difference of terms that large: its error, ~5e-11 of the well
     depth at rtol 1e-10, made an undamped DMT rebound's ``cor_n`` 2.7e-3 off at 1e-4 v_ad and
     a capture at 1e-5 v_ad. The balance's error is that of the loss, relative to the loss.
     """
-    if terms.normal != "dmt" or terms.mindlin or "loss_hertz_damping" not in y:
+    if terms.normal != "dmt" or not terms.adhesion or terms.mindlin:
+        return None  # without adhesion (w = 0) no deep well: the state's energy, as Hertz's
+    if "loss_hertz_damping" not in y:
         return None
     shell = p.C_H * laws.hertz_potential(terms.contact_floor, p.radius, p.K)
     return 0.5 - shell - y["loss_hertz_damping"]
