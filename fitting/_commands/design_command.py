@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .words import _swallowed, split_names
+from .words import parse_pairs, split_names
 
 __all__ = ["add_design_command", "cmd_design"]
 
@@ -72,18 +72,7 @@ def cmd_design(args) -> int:
     from .._least_squares.objective import FITTABLE, FitError, check_names
 
     names = check_names(split_names("--params", args.params, FITTABLE, "design"))
-    sigma = {}
-    for item in args.sigma:
-        name, sep, text = item.partition("=")
-        try:
-            if not sep:
-                raise ValueError
-            sigma[name.strip()] = float(text)
-        except ValueError:
-            raise FitError(
-                f"--sigma expects OBSERVABLE=SIGMA, got {item!r}"
-                + _swallowed("--sigma", item, "design")
-            ) from None
+    sigma = parse_pairs(args.sigma, "--sigma", "OBSERVABLE=SIGMA", "design")
     if args.n < 1:
         raise FitError(f"--n must be an integer >= 1, got {args.n}")
     if args.max_draws < 1:

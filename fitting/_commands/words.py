@@ -7,6 +7,12 @@ __all__ = ["EMBEDDED_DATA", "split_names"]
 
 
 def _parse_init(items) -> dict[str, float]:
+    return parse_pairs(items, "--init", "NAME=VALUE")
+
+
+def parse_pairs(items, option: str, form: str, command: str = "fit") -> dict[str, float]:
+    """``{name: float}`` from ``NAME=VALUE`` words of ``option``; ``FitError`` naming the
+    option and its ``form`` (with the hint for a swallowed positional argument) otherwise."""
     from .._least_squares.objective import FitError
 
     out = {}
@@ -18,7 +24,7 @@ def _parse_init(items) -> dict[str, float]:
             out[name.strip()] = float(text)
         except ValueError:
             raise FitError(
-                f"--init expects NAME=VALUE, got {item!r}{_swallowed('--init', item)}"
+                f"{option} expects {form}, got {item!r}{_swallowed(option, item, command)}"
             ) from None
     return out
 
