@@ -119,6 +119,10 @@ _TABLE = (
     # metals' 0.1-10 GPa inside the default prior
     ("p_y", "contact", "p_y", (1e7, 1e11), "log",
      'limiting contact pressure (model.normal = "thornton_ning")'),
+    # its unit is model.damping's (LAMMPS's eta_n0): no default prior (give one)
+    ("eta_n", "contact", "eta_n", None, "log",
+     'coefficient of a LAMMPS normal damping (model.damping = "velocity", "mass_velocity", '
+     '"viscoelastic" or "tsuji")'),
     ("lambda", "model", "lambda_", (1e-3, 1e2), "log",
      'lambda of the constant-lambda rolling law (model.rolling_moments = "lambda")'),
     ("radius", "particle", "radius", (1e-7, 1e-1), "log", "radius of the sphere"),
@@ -169,6 +173,17 @@ def unused_reason(scene, name: str) -> str | None:
         )
     if name == "f0" and model.normal != "brach_dunn":
         return f"f0 is the Brach-Dunn ring's; the {model.normal} law takes w (work of adhesion)"
+    if name == "eta_n" and model.damping == "hertzian":
+        return (
+            "eta_n is the coefficient of a LAMMPS normal damping (model.damping = "
+            '"velocity", "mass_velocity", "viscoelastic" or "tsuji"); the scene has the '
+            "Hertzian damping, which takes C_H"
+        )
+    if name == "C_H" and model.damping != "hertzian":
+        return (
+            f'C_H is the Hertzian damping; the scene has model.damping = "{model.damping}", '
+            "whose coefficient is eta_n"
+        )
     if name == "p_y" and model.normal != "thornton_ning":
         return (
             'p_y (limiting contact pressure) is used only with model.normal = "thornton_ning" '

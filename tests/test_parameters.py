@@ -37,7 +37,7 @@ def a_value(name: str) -> float:
     p = PARAMETERS[name]
     if p.default_prior is not None:
         return math.sqrt(p.default_prior[0] * p.default_prior[1])
-    return {"radius2": 1e-3, "density2": 7000.0, "omega2": -5.0}[name]
+    return {"radius2": 1e-3, "density2": 7000.0, "omega2": -5.0, "eta_n": 0.5}[name]
 
 
 def test_every_parameter_has_a_place_in_the_scene_and_its_range_admits_the_default_value():
@@ -70,7 +70,14 @@ def test_transform_round_trips_and_priors_lie_inside_the_range():
     for name in FITTABLE:
         p = PARAMETERS[name]
         assert p.transform in TRANSFORMS
-        lo, hi = p.default_prior
+        if p.default_prior is None:  # a unit that depends on the scene: the user gives one
+            assert name == "eta_n"
+            from fitting._bayesian.priors import default_prior
+            from fitting._least_squares.objective import FitError
+
+            with pytest.raises(FitError, match="eta_n has no default prior .* --prior eta_n="):
+                default_prior(name)
+        lo, hi = p.default_prior or (1e-6, 1.0)
         assert 0 < lo < hi
         assert p.range.contains(lo) and p.range.contains(hi), name
         if p.transform == "logit":  # bounded on both sides: the prior inside, ends excluded
@@ -107,6 +114,8 @@ def test_default_priors_are_the_registrys():
 
     assert PRIOR_RANGES == {n: PARAMETERS[n].default_prior for n in FITTABLE}
     for name in FITTABLE:
+        if PARAMETERS[name].default_prior is None:  # eta_n: tested above
+            continue
         prior = default_prior(name)
         assert (prior.kind, (prior.a, prior.b)) == ("loguniform", PARAMETERS[name].default_prior)
 

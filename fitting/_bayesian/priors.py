@@ -64,6 +64,11 @@ class Prior:
 
 
 def default_prior(name: str) -> Prior:
+    if PRIOR_RANGES[name] is None:  # a unit that depends on the scene (eta_n)
+        raise FitError(
+            f"{name} has no default prior (its unit depends on the scene: "
+            f"{PARAMETERS[name].unit}); give one, e.g. --prior {name}=loguniform:LO:HI"
+        )
     lo, hi = PRIOR_RANGES[name]
     return Prior("loguniform", lo, hi)
 

@@ -68,7 +68,7 @@ class _Problem(eqx.Module):
 def _problem(terms: dyn.Terms, cfg: Integration, params: dict, speed, angle_deg, omega0):
     """Set up one impact: initial state at the contact floor, event, solver, controller."""
     dtype = jnp.result_type(speed)
-    p, u = _scaled(params, speed, angle_deg, omega0)
+    p, u = _scaled(params, speed, angle_deg, omega0, terms.damping)
     theta = jnp.deg2rad(angle_deg)
     v_n, v_t = speed * jnp.cos(theta), speed * jnp.sin(theta)
     w2 = params["omega2"] * u.time if "omega2" in params else 0.0

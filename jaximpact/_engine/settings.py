@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._model import dynamics as dyn
+from .._model import laws
 from .._model.scene import INERTIA_FACTOR, Scene, SceneError, _is_concrete, check_range
 from .._model.units import ScaledParameters, hertz_units
 from .solvers import (
@@ -24,7 +25,8 @@ PARAMETERS = ("radius", "density", "K", "f0", "C_A", "C_H", "friction", "lambda"
 
 def scene_parameters(scene: Scene) -> dict:
     """The scene's float parameters by their impacts-CSV column names (and ``G_star`` when the
-    scene uses the Mindlin tangential spring, ``w`` with the DMT or JKR normal law,
+    scene uses the Mindlin tangential spring, ``w`` with the DMT or JKR normal law, ``eta_n``
+    with a LAMMPS normal damping,
     ``radius2``, ``density2`` and ``omega2`` with a second sphere)."""
     params = {
         "radius": scene.particle.radius,
@@ -42,6 +44,8 @@ def scene_parameters(scene: Scene) -> dict:
         params["w"] = scene.contact.w
     if scene.model.normal == "thornton_ning":
         params["p_y"] = scene.contact.p_y
+    if scene.model.damping != "hertzian":
+        params["eta_n"] = scene.contact.eta_n
     if scene.target is not None:
         params.update(
             radius2=scene.target.radius, density2=scene.target.density, omega2=scene.target.omega0
@@ -103,16 +107,18 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         cap_width=CAP_WIDTH if m.tangential == "mindlin" else 0.0,
         normal=m.normal,
         target=scene.target is not None,
+        damping=m.damping,
     )
 
 
-def stiffness_estimate(params: dict, speed, angle_deg):
-    """Fastest relaxation rate of the damping and rolling-moment terms, in Hertz units.
+def stiffness_estimate(params: dict, speed, angle_deg, damping: str = "hertzian"):
+    """Fastest relaxation rate of the damping and rolling-moment terms, in Hertz units
+    (``damping``: the scene's ``model.damping``).
 
     An explicit solver needs of the order of this many steps per impact; ``method="auto"``
     switches to the implicit Kvaerno5 above ``solver.stiffness_limit``.
     """
-    p, _ = _scaled(params, speed, angle_deg, 0.0)
+    p, _ = _scaled(params, speed, angle_deg, 0.0, damping)
     a = jnp.sqrt(p.radius)  # contact radius at unit overlap
     rates = [
         1.25 * p.C_H,  # Hertz damping
@@ -123,15 +129,17 @@ def stiffness_estimate(params: dict, speed, angle_deg):
     ]
     if p.inertia2 is not None:  # the moments turn a second sphere too
         rates += [r * p.inertia / p.inertia2 for r in rates[2:]]
+    if p.eta_n is not None:  # a LAMMPS normal damping (mass 1): eta_n at unit overlap
+        rates.append(laws.lammps_damping_coefficient(damping, a, p.eta_n, p.K))
     return jnp.max(jnp.stack([jnp.max(r) for r in rates]))
 
 
 # One compiled program instead of a dozen dispatched operations (about 0.1 s of a warm
 # command-line run); values are concrete where it is called (``integration_settings``).
-_stiffness_estimate_jit = jax.jit(stiffness_estimate)
+_stiffness_estimate_jit = jax.jit(stiffness_estimate, static_argnames="damping")
 
 
-def _scaled(params, speed, angle_deg, omega0):
+def _scaled(params, speed, angle_deg, omega0, damping="hertzian"):
     theta = jnp.deg2rad(angle_deg)
     v_n = speed * jnp.cos(theta)
     mass = params["density"] * (4.0 / 3.0) * jnp.pi * params["radius"] ** 3
@@ -156,6 +164,8 @@ def _scaled(params, speed, angle_deg, omega0):
         w_adhesion=params.get("w"),
         target=target,
         p_yield=params.get("p_y"),
+        damping=damping,
+        eta_n=params.get("eta_n"),
     )
     return p, units
 
@@ -180,7 +190,8 @@ def integration_settings(scene, params, speed, angle_deg, dtype, method=None) ->
         if default_slip_width(dtype, s.slip_width, rtol) < 30 * rtol:
             method = "kvaerno5"
         elif _all(list(params.values()) + [speed, angle_deg], lambda v: True):
-            if float(_stiffness_estimate_jit(params, speed, angle_deg)) > s.stiffness_limit:
+            rate = _stiffness_estimate_jit(params, speed, angle_deg, scene.model.damping)
+            if float(rate) > s.stiffness_limit:
                 method = "kvaerno5"
     if method not in ("tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"):
         raise SceneError(f"solver.method {method!r} is not a known method")

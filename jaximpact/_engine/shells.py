@@ -28,12 +28,18 @@ def _shell_entry(terms: dyn.Terms, p: ScaledParameters, dtype) -> dict:
     eps = terms.contact_floor
     sr = jnp.sqrt(p.radius)
     hertz = 0.4 * p.K * sr * eps**2.5
-    work = -hertz * (1.0 + p.C_H)
-    if terms.adhesion:
-        work = work + _shell_adhesion(terms, p)[0]
-    ndot = jnp.sqrt(jnp.asarray(1.0 + 2.0 * work, dtype))
+    if terms.lammps_damping:  # the damping's loss and the speed solved together
+        work = -hertz
+        if terms.adhesion:
+            work = work + _shell_adhesion(terms, p)[0]
+        ndot, loss = dyn.entry_shell_damping(terms, p, jnp.asarray(work, dtype))
+    else:
+        work = -hertz * (1.0 + p.C_H)
+        if terms.adhesion:
+            work = work + _shell_adhesion(terms, p)[0]
+        ndot, loss = jnp.sqrt(jnp.asarray(1.0 + 2.0 * work, dtype)), hertz * p.C_H
     shell = {"ndot": ndot, "time": 2.0 * eps / (1.0 + ndot), "peak": eps}
-    shell["loss_hertz_damping"] = hertz * p.C_H
+    shell["loss_hertz_damping"] = loss
     shell["loss_adhesion_damping"] = jnp.zeros_like(ndot)
     return shell
 
@@ -80,10 +86,22 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None, peak=None) -
         half_xi2 = 0.5 * xi * xi
         energy = energy + 2.0 * half_xi2 * 8.0 * p.G_star * (a_sep - a_c)
         spring_lost = half_xi2 * 8.0 * p.G_star * a_c
+    if terms.lammps_damping:  # eta_n at the mean of the two ends, at the mean speed
+        eta = 0.5 * (
+            laws.lammps_damping_coefficient(terms.damping, a_sep, p.eta_n, p.K)
+            + laws.lammps_damping_coefficient(terms.damping, a_c, p.eta_n, p.K)
+        )
+        D = eta * width
+        energy = energy - D * speed
+        ok = energy > 0
+        out_speed = dyn._damped_exit_speed(D, jnp.where(ok, energy, 1.0))
+        damping = 0.5 * D * (speed + out_speed)
+    else:
+        ok = energy > 0
+        out_speed = jnp.sqrt(jnp.where(ok, energy, 1.0))
     shell = {"loss_hertz_damping": damping, "loss_adhesion_damping": barrier}
     shell["peak"] = jnp.zeros_like(ndot)
-    shell["ok"] = energy > 0
-    out_speed = jnp.sqrt(jnp.where(shell["ok"], energy, 1.0))
+    shell["ok"] = ok
     shell["ndot"] = -out_speed
     shell["time"] = 2.0 * width / (speed + out_speed)
     # |integral of the friction load over n| across the stretch (for its tangential impulse)
@@ -91,7 +109,10 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None, peak=None) -
         laws.jkr_adhesion_force(a_sep, p.K, p.w_adhesion)
         + laws.jkr_adhesion_force(a_c, p.K, p.w_adhesion)
     )
-    net = jnp.abs(adhesive - hertz * (1.0 + p.C_H * ndot)) * width
+    net = adhesive - hertz * (1.0 + p.C_H * ndot)
+    if terms.lammps_damping:
+        net = net - eta * ndot
+    net = jnp.abs(net) * width
     shell["load_work"] = net if terms.friction_load == "net" else hertz * width
     shell["width"] = width
     if spring_lost is not None:  # with the spring's tangential impulse across the stretch
@@ -137,8 +158,15 @@ def _shell_exit(
     if balance is not None:  # the same sum, without the well's terms that cancel in it
         lost = shell["loss_hertz_damping"] + shell["loss_adhesion_damping"]
         energy = 2.0 * (balance - lost) + (0.0 if spring is None else 2.0 * spring)
-    shell["ok"] = energy > 0
-    out_speed = jnp.sqrt(jnp.where(shell["ok"], energy, 1.0))
+    if terms.lammps_damping:  # its loss D (in + out) / 2, solved with the balance
+        D = dyn.shell_damping_integral(terms, p)
+        energy = energy - D * speed
+        shell["ok"] = energy > 0
+        out_speed = dyn._damped_exit_speed(D, jnp.where(shell["ok"], energy, 1.0))
+        shell["loss_hertz_damping"] = shell["loss_hertz_damping"] + 0.5 * D * (speed + out_speed)
+    else:
+        shell["ok"] = energy > 0
+        out_speed = jnp.sqrt(jnp.where(shell["ok"], energy, 1.0))
     shell["ndot"] = -out_speed
     shell["time"] = 2.0 * eps / (speed + out_speed)
     return shell
@@ -171,6 +199,8 @@ def _shell_friction(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict,
         load, eps = shell["load_work"], shell["width"]
     elif terms.friction_load == "net":
         load = -hertz * (1.0 + p.C_H * ndot)
+        if terms.lammps_damping:  # -int eta_n ndot dn across the shell
+            load = load - dyn.shell_damping_integral(terms, p) * ndot
         if terms.adhesion:
             adhesion, damping = _shell_adhesion(terms, p)
             load = load + adhesion * (1.0 + damping * jnp.maximum(-ndot, 0.0))

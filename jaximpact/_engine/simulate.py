@@ -219,6 +219,7 @@ _NOMINAL = {
     "G_star": 2e10,
     "w": 0.1,
     "p_y": 1e9,
+    "eta_n": 1e-12,  # every LAMMPS damping quick there (tsuji: alpha(0) = 1.27, scale-free)
     "radius2": 21.7e-6,
     "density2": 2500.0,
     "omega2": 0.0,

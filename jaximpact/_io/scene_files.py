@@ -39,6 +39,7 @@ ALLOWED = {
         "G_star",
         "w",
         "p_y",
+        "eta_n",
     },
     "model": {
         "rotation",
@@ -48,6 +49,7 @@ ALLOWED = {
         "friction_load",
         "tangential",
         "normal",
+        "damping",
     },
     "impact": {"speed", "angle_deg", "omega0"},
     "target": {"radius", "density", "omega0"},
@@ -67,7 +69,8 @@ ALLOWED = {
 # `jaximpact fit --posterior`), as text "loguniform:LO:HI" or "normal:MU:SD" (SI units); the
 # simulator ignores them. The spec itself is checked by `fitting` (it names the scene key).
 PRIOR_NAMES = {
-    "C_A", "C_H", "f0", "friction", "K", "G_star", "w", "p_y", "lambda", "radius", "density"
+    "C_A", "C_H", "f0", "friction", "K", "G_star", "w", "p_y", "eta_n", "lambda", "radius",
+    "density",
 }  # fmt: skip
 ALLOWED["priors"] = PRIOR_NAMES
 REQUIRED_SECTIONS = ("particle", "contact")
@@ -266,6 +269,7 @@ def _contact(data: dict, particle: Particle) -> tuple:
         G_star=G_star,
         w=number("contact", "w", 0.0),
         p_y=number("contact", "p_y", 0.0),
+        eta_n=number("contact", "eta_n", 0.0),
     )
     return contact, f0, G_star
 
@@ -278,7 +282,7 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
     for key in ("rotation", "adhesion"):
         if key in m and not isinstance(m[key], bool):
             raise SceneError(f"model.{key} must be true or false, got {m[key]!r}")
-    for key in ("rolling_moments", "friction_load", "tangential", "normal"):
+    for key in ("rolling_moments", "friction_load", "tangential", "normal", "damping"):
         if key in m and not isinstance(m[key], str):
             raise SceneError(f"model.{key} must be a string, got {m[key]!r}")
     normal = m.get("normal", "brach_dunn")
@@ -297,6 +301,14 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
             "contact.p_y (limiting contact pressure) is used only with model.normal = "
             '"thornton_ning"'
         )
+    damping = m.get("damping", "hertzian")
+    if damping == "hertzian" and "eta_n" in c:
+        raise SceneError(
+            "contact.eta_n is the coefficient of a LAMMPS normal damping: give model.damping "
+            '("velocity", "mass_velocity", "viscoelastic" or "tsuji")'
+        )
+    if damping != "hertzian" and "eta_n" not in c:
+        raise SceneError(f'model.damping = "{damping}" needs contact.eta_n')
     strength = contact.f0 if normal == "brach_dunn" else contact.w
     if normal == "thornton_ning" and "adhesion" not in m and not strength > 0:
         raise SceneError(
@@ -312,6 +324,7 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
         lambda_=number("model", "lambda", 0.0),
         tangential=m.get("tangential", "rigid"),
         normal=normal,
+        damping=damping,
     )
     if model.tangential == "mindlin" and not G_star > 0:
         raise SceneError(

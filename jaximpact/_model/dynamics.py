@@ -59,6 +59,14 @@ class Terms(eqx.Module):
     normal: str = eqx.field(static=True, default="brach_dunn")
     # A second sphere instead of the wall: its spin w2 is a state (with rotation).
     target: bool = eqx.field(static=True, default=False)
+    # model.damping: "hertzian" (Brach-Dunn's C_H) or one of LAMMPS's normal damping models
+    # (laws.LAMMPS_DAMPING), whose coefficient is ScaledParameters.eta_n.
+    damping: str = eqx.field(static=True, default="hertzian")
+
+    @property
+    def lammps_damping(self):
+        """A LAMMPS normal damping model replaces the Hertzian damping (``C_H`` is 0)."""
+        return self.damping in laws.LAMMPS_DAMPING
 
     @property
     def has_moments(self):
@@ -238,8 +246,40 @@ def balanced_normal_energy(terms: Terms, p: ScaledParameters, y):
         return None  # without adhesion (w = 0) no deep well: the state's energy, as Hertz's
     if "loss_hertz_damping" not in y:
         return None
-    shell = p.C_H * laws.hertz_potential(terms.contact_floor, p.radius, p.K)
+    work = laws.hertz_potential(terms.contact_floor, p.radius, p.K)
+    work = work + adhesion_potential(terms, p, terms.contact_floor)
+    _, shell = entry_shell_damping(terms, p, -work)
     return 0.5 - shell - y["loss_hertz_damping"]
+
+
+def shell_damping_integral(terms: Terms, p: ScaledParameters, n=None):
+    """``int_0^n eta_n dn`` of a LAMMPS damping (default ``n``: the contact floor): its work
+    across the contact shell at unit speed."""
+    n = terms.contact_floor if n is None else n
+    return laws.lammps_damping_integral(terms.damping, n, p.radius, p.eta_n, p.K)
+
+
+def entry_shell_damping(terms: Terms, p: ScaledParameters, work):
+    """``(ndot, loss)``: the normal speed at the contact floor after the approach through the
+    shell ``0 <= n <= floor`` (speed 1 at first touch, ``work`` the conservative forces' work
+    there) and the damping's loss in the shell. The Hertzian damping's is ``C_H V_H(floor)``
+    (at speed ~1); a LAMMPS damping's, ``D (1 + ndot) / 2`` with ``D`` its integral over the
+    shell (:func:`shell_damping_integral`, the mean of the two speeds: the speed changes across
+    the shell by ``O(D)``, which is ~1e-4 for a strongly damped contact), solved exactly
+    together with the energy balance ``ndot^2 = 1 + 2 work - D (1 + ndot)``."""
+    if not terms.lammps_damping:
+        loss = p.C_H * laws.hertz_potential(terms.contact_floor, p.radius, p.K)
+        return jnp.sqrt(1.0 + 2.0 * (work - loss)), loss
+    D = shell_damping_integral(terms, p)
+    ndot = _damped_exit_speed(D, 1.0 + 2.0 * work - D)
+    return ndot, 0.5 * D * (1.0 + ndot)
+
+
+def _damped_exit_speed(D, c):
+    """The root ``v >= 0`` of ``v^2 + D v = c`` (``c >= 0``): the speed after a stretch whose
+    damping work is ``D`` times the mean of the speeds before and after."""
+    c = jnp.maximum(c, 0.0)
+    return 2.0 * c / (D + jnp.sqrt(D * D + 4.0 * c))
 
 
 def capture_margin(terms: Terms, p: ScaledParameters, y):
@@ -305,7 +345,11 @@ def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w, peak=None):
     Thornton-Ning's curve."""
     f = {}
     f["F_H"] = laws.hertz_force(n, p.radius, p.K)
-    f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
+    if terms.lammps_damping:  # LAMMPS's normal damping -eta_n(a) ndot (C_H is 0)
+        a = laws.contact_radius(n, p.radius, terms.contact_floor)
+        f["F_HD"] = -laws.lammps_damping_coefficient(terms.damping, a, p.eta_n, p.K) * ndot
+    else:
+        f["F_HD"] = laws.hertz_damping_force(n, ndot, p.radius, p.K, p.C_H)
     F_n = f["F_H"] + f["F_HD"]
     M_A = None
     if terms.jkr:  # the Hertzian part (damped as Hertz's force) and the adhesive part
@@ -314,6 +358,8 @@ def _normal_loads(terms: Terms, p: ScaledParameters, n, ndot, w, peak=None):
         f["r_curve"] = jkr_curve(terms, p, peak)[0]
         f["F_H"] = laws.jkr_hertz_force(a, f["r_curve"], p.K)
         f["F_HD"] = f["F_H"] * p.C_H * ndot
+        if terms.lammps_damping:
+            f["F_HD"] = -laws.lammps_damping_coefficient(terms.damping, a, p.eta_n, p.K) * ndot
         f["F_A"] = laws.jkr_adhesion_force(a, p.K, p.w_adhesion)
         F_n = f["F_H"] + f["F_HD"] + f["F_A"]
         M_A = jnp.zeros_like(n)

@@ -39,6 +39,55 @@ def hertz_damping_force(n, ndot, radius, K, C_H):
     return hertz_force(n, radius, K) * C_H * ndot
 
 
+#: LAMMPS's normal damping models (``pair_style granular`` / ``fix wall/gran granular``,
+#: keyword ``damping``; version 29 Sep 2021), ``model.damping`` in a scene: the force is
+#: ``-eta_n ndot`` with ``eta_n`` = ``eta`` (velocity), ``eta m`` (mass_velocity), ``eta a m``
+#: (viscoelastic) or ``alpha(e) sqrt(m K a)`` (tsuji), ``a`` the contact radius, ``m`` the
+#: (reduced) mass and ``K a`` LAMMPS's ``knfac`` (``4/3 E* a``). "hertzian" is Brach-Dunn's
+#: ``C_H`` (:func:`hertz_damping_force`).
+LAMMPS_DAMPING = ("velocity", "mass_velocity", "viscoelastic", "tsuji")
+
+# LAMMPS's fit of Tsuji, Tanaka & Ishida (1992): alpha as a polynomial of the restitution
+# coefficient e (coefficients of e^0 .. e^6, as LAMMPS's fix wall/gran and pair granular apply).
+_TSUJI = (1.2728, -4.2783, 11.087, -22.348, 27.467, -18.022, 4.8218)
+
+
+def tsuji_alpha(e):
+    """``alpha(e)`` of LAMMPS's ``damping tsuji``, whose coefficient is a restitution
+    coefficient ``e`` (for a Hertz contact the restitution is then about ``e`` whatever the
+    speed: the damping scales as the stiffness)."""
+    out = 0.0
+    for c in reversed(_TSUJI):
+        out = out * e + c
+    return out
+
+
+def lammps_damping_coefficient(damping, a, eta, K, mass=1.0):
+    """``eta_n`` of LAMMPS's normal damping force ``-eta_n ndot`` at contact radius ``a``
+    (``damping`` one of :data:`LAMMPS_DAMPING`; for "tsuji" ``eta`` is ``alpha(e)``)."""
+    if damping == "velocity":
+        return eta + 0.0 * a
+    if damping == "mass_velocity":
+        return eta * mass + 0.0 * a
+    if damping == "viscoelastic":
+        return eta * a * mass
+    if damping == "tsuji":
+        return eta * safe_sqrt(mass * K * a)
+    raise ValueError(f"unknown damping model {damping!r}")
+
+
+def lammps_damping_integral(damping, n, radius, eta, K, mass=1.0):
+    """``int_0^n eta_n dn'`` along the Hertz contact radius ``sqrt(r n')``: the work of the
+    damping over the overlap ``n`` at unit speed (the contact shells in closed form)."""
+    if damping in ("velocity", "mass_velocity"):
+        return lammps_damping_coefficient(damping, 0.0, eta, K, mass) * n
+    if damping == "viscoelastic":
+        return eta * mass * jnp.sqrt(radius) * (2.0 / 3.0) * safe_pow(n, 1.5)
+    if damping == "tsuji":
+        return eta * jnp.sqrt(mass * K) * radius**0.25 * 0.8 * safe_pow(n, 1.25)
+    raise ValueError(f"unknown damping model {damping!r}")
+
+
 def adhesion_force(n, radius, f0, n_min=0.0):
     """Ring adhesion ``F_A = 2 pi a f0`` (eq. 2), attractive. (``n_min``: see contact_radius.)"""
     return 2.0 * jnp.pi * contact_radius(n, radius, n_min) * f0

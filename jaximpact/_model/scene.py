@@ -22,6 +22,9 @@ FrictionLoad = Literal["net", "hertz"]
 TANGENTIAL_MODELS = ("rigid", "mindlin")
 #: The normal contact laws of ``model.normal`` (docs/physics.md, "Normal laws").
 NORMAL_LAWS = ("brach_dunn", "dmt", "jkr", "thornton_ning")
+#: The normal damping of ``model.damping``: Brach-Dunn's Hertzian damping (``contact.C_H``) or
+#: one of LAMMPS's damping models (``contact.eta_n``; ``laws.LAMMPS_DAMPING``).
+DAMPING_MODELS = ("hertzian", "velocity", "mass_velocity", "viscoelastic", "tsuji")
 SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
 
 
@@ -157,6 +160,10 @@ class Contact(eqx.Module):
     - `p_y`: limiting contact pressure (Pa, > 0) of the Thornton-Ning law (``model.normal =
       "thornton_ning"``): the contact yields where the JKR pressure at its centre reaches it
       (0, the default, means "not given").
+    - `eta_n`: the coefficient of a LAMMPS normal damping (``model.damping``), as LAMMPS's
+      ``damping`` keyword takes it: kg/s (``"velocity"``), 1/s (``"mass_velocity"``),
+      1/(m s) (``"viscoelastic"``), or the restitution coefficient in (0, 1] that sets Tsuji's
+      alpha (``"tsuji"``). Unused with the Hertzian damping (the default).
     """
 
     K: jax.Array = eqx.field(converter=_numbers("contact.K"))
@@ -167,9 +174,10 @@ class Contact(eqx.Module):
     G_star: jax.Array = eqx.field(converter=_numbers("contact.G_star"), default=0.0)
     w: jax.Array = eqx.field(converter=_numbers("contact.w"), default=0.0)
     p_y: jax.Array = eqx.field(converter=_numbers("contact.p_y"), default=0.0)
+    eta_n: jax.Array = eqx.field(converter=_numbers("contact.eta_n"), default=0.0)
 
     def __check_init__(self):
-        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star", "w", "p_y"):
+        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star", "w", "p_y", "eta_n"):
             check_input(f"contact.{name}", name, getattr(self, name))
 
 
@@ -196,6 +204,12 @@ class Model(eqx.Module):
       ``contact.p_y``, then plastic loading and elastic JKR unloading along a flatter curve;
       needs ``contact.w > 0`` and ``contact.p_y > 0``, rigid tangential contact only);
       docs/physics.md, "Normal laws".
+    - `damping`: the normal damping: ``"hertzian"`` (default: Brach-Dunn's ``C_H`` times the
+      Hertz force) or one of LAMMPS's (``pair_style granular``, version 29 Sep 2021):
+      ``"velocity"``, ``"mass_velocity"``, ``"viscoelastic"``, ``"tsuji"``, the force
+      ``-eta ndot`` with ``eta`` = ``eta_n``, ``eta_n m``, ``eta_n a m`` or ``alpha(eta_n)
+      sqrt(m K a)`` (``contact.eta_n``; ``contact.C_H`` must then be 0); not with
+      Thornton-Ning; docs/physics.md, "LAMMPS damping".
     """
 
     rotation: bool = eqx.field(static=True, default=True)
@@ -205,8 +219,19 @@ class Model(eqx.Module):
     lambda_: jax.Array = eqx.field(converter=_numbers("model.lambda"), default=0.0)
     tangential: str = eqx.field(static=True, default="rigid")
     normal: str = eqx.field(static=True, default="brach_dunn")
+    damping: str = eqx.field(static=True, default="hertzian")
 
     def __check_init__(self):
+        if self.damping not in DAMPING_MODELS:
+            raise SceneError(
+                f"model.damping must be one of {', '.join(repr(d) for d in DAMPING_MODELS)}, "
+                f"got {self.damping!r}"
+            )
+        if self.damping != "hertzian" and self.normal == "thornton_ning":
+            raise SceneError(
+                f'model.damping = "{self.damping}" (LAMMPS) works with model.normal = '
+                '"brach_dunn", "dmt" or "jkr", not "thornton_ning"'
+            )
         if self.normal not in NORMAL_LAWS:
             raise SceneError(
                 f"model.normal must be one of {', '.join(repr(n) for n in NORMAL_LAWS)}, got "
@@ -293,6 +318,7 @@ SCENE_ARRAYS = (
     ("contact", "G_star"),
     ("contact", "w"),
     ("contact", "p_y"),
+    ("contact", "eta_n"),
     ("model", "lambda_"),
     ("target", "radius"),
     ("target", "density"),
@@ -434,6 +460,26 @@ class Scene(eqx.Module):
                 self.contact.G_star,
                 positive=True,
             )
+        if self.model.damping != "hertzian":
+            self._check_lammps_damping()
+
+    def _check_lammps_damping(self):
+        """A LAMMPS damping replaces the Hertzian one: ``C_H`` must be 0; Tsuji's coefficient
+        is a restitution coefficient in (0, 1]."""
+        c, damping = self.contact, self.model.damping
+        if _is_concrete(c.C_H) and np.any(np.asarray(c.C_H) != 0):
+            raise SceneError(
+                f'contact.C_H must be 0 with model.damping = "{damping}" (got {_show(c.C_H)} '
+                "s/m): C_H is the Hertzian damping, which the LAMMPS damping replaces; give its "
+                "coefficient as contact.eta_n"
+            )
+        if damping == "tsuji" and _is_concrete(c.eta_n):
+            e = np.asarray(c.eta_n, float)
+            if np.any(~((e > 0) & (e <= 1))):
+                raise SceneError(
+                    'contact.eta_n must be in (0, 1] with model.damping = "tsuji" (the '
+                    f"restitution coefficient that sets Tsuji's alpha), got {_show(c.eta_n)}"
+                )
 
     def _check_yield_after_touch(self):
         """Thornton-Ning: the contact must not yield before it forms, i.e. ``p_y`` above the

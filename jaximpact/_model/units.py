@@ -56,6 +56,9 @@ class ScaledParameters(eqx.Module):
     # Thornton-Ning: the limiting contact pressure and the yield radius it gives.
     p_yield: jax.Array | None = None
     a_yield: jax.Array | None = None
+    # A LAMMPS normal damping (``model.damping``, ``laws.LAMMPS_DAMPING``): its coefficient in
+    # Hertz units (mass 1), as ``laws.lammps_damping_coefficient`` takes it (tsuji: alpha(e)).
+    eta_n: jax.Array | None = None
 
     @staticmethod
     def from_si(
@@ -73,8 +76,12 @@ class ScaledParameters(eqx.Module):
         w_adhesion=None,
         target=None,
         p_yield=None,
+        damping=None,
+        eta_n=None,
     ):
-        """``target``: ``(r1, m1, r2, m2)`` (SI) of a sphere-sphere impact, whose contact radius
+        """``damping``, ``eta_n``: a LAMMPS normal damping model and its coefficient (SI, as
+        LAMMPS takes it: kg/s, 1/s, 1/(m s), or the restitution coefficient of "tsuji").
+        ``target``: ``(r1, m1, r2, m2)`` (SI) of a sphere-sphere impact, whose contact radius
         ``radius`` is the reduced one and mass unit ``u.mass`` the reduced mass."""
         L, T, m = u.length, u.time, u.mass
         r = radius / L
@@ -90,6 +97,13 @@ class ScaledParameters(eqx.Module):
         if p_yield is not None:  # a pressure scales as K
             p_yield = p_yield * L * T**2 / m
             a_yield = laws.thornton_ning_yield_radius(r, 0.75 * K_scaled, w_scaled, p_yield)
+        eta_scaled = None
+        if damping in laws.LAMMPS_DAMPING:
+            scale = {"velocity": T / m, "mass_velocity": T, "viscoelastic": L * T}
+            if damping == "tsuji":
+                eta_scaled = laws.tsuji_alpha(jnp.asarray(eta_n))
+            else:
+                eta_scaled = eta_n * scale[damping]
         return ScaledParameters(
             radius=r,
             K=K_scaled,
@@ -106,4 +120,5 @@ class ScaledParameters(eqx.Module):
             inertia2=inertia2,
             p_yield=p_yield,
             a_yield=a_yield,
+            eta_n=eta_scaled,
         )

@@ -32,6 +32,29 @@ def ring_integrals(ndot: float, b: float) -> tuple[float, float]:
     return i0, (i1 if b > 0 else -i1)
 
 
+# LAMMPS's Tsuji polynomial alpha(e) (coefficients of e^0 .. e^6; LAMMPS 29 Sep 2021).
+_TSUJI = (1.2728, -4.2783, 11.087, -22.348, 27.467, -18.022, 4.8218)
+
+
+def damping_force(p: Params, hertz: float, a: float, ndot: float) -> float:
+    """The normal damping force at Hertz force ``hertz`` and contact radius ``a``: Brach-Dunn's
+    ``-C_H hertz ndot``, or LAMMPS's ``-eta_n ndot`` (``eta_n``: ``eta``, ``eta m``, ``eta a
+    m`` or ``alpha(e) sqrt(m K a)``, with ``m`` the reduced mass)."""
+    if p.damping == "hertzian":
+        return -hertz * p.C_H * ndot
+    m = p.reduced_mass
+    if p.damping == "velocity":
+        eta = p.eta_n
+    elif p.damping == "mass_velocity":
+        eta = p.eta_n * m
+    elif p.damping == "viscoelastic":
+        eta = p.eta_n * a * m
+    else:  # tsuji
+        alpha = sum(c * p.eta_n**i for i, c in enumerate(_TSUJI))
+        eta = alpha * math.sqrt(m * p.K * a)
+    return -eta * ndot
+
+
 def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
     """Normal force parts, rolling moments and friction load at a state (SI).
 
@@ -46,7 +69,7 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
     a = math.sqrt(r * n)
     hertz = p.K * math.sqrt(r) * n**1.5
     out["F_H"] = -hertz
-    out["F_HD"] = -hertz * p.C_H * ndot
+    out["F_HD"] = damping_force(p, hertz, a, ndot)
     analytical = p.rolling_moments == "analytical"
     if p.adhesion and p.normal == "dmt":
         out["F_A"] = 2.0 * math.pi * p.w * r
@@ -75,7 +98,7 @@ def _jkr_forces(p: Params, n: float, ndot: float, w: float, out: dict) -> dict:
     a = jkr.contact_radius(n, r, E, p.w)
     hertz = p.K * a**3 / r
     out["F_H"] = -hertz
-    out["F_HD"] = -hertz * p.C_H * ndot
+    out["F_HD"] = damping_force(p, hertz, a, ndot)
     out["F_A"] = math.sqrt(6.0 * math.pi * p.w * p.K * a**3)
     if p.rolling_moments == "analytical":
         out["M_H"] = -(p.K / 5.0) * p.C_H * a**5 / r * w

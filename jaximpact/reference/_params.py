@@ -19,6 +19,10 @@ FRICTION_LOADS = ("net", "hertz")
 NORMAL_LAWS = ("brach_dunn", "dmt", "jkr")
 
 
+#: Values of ``Params.damping``.
+DAMPING_MODELS = ("hertzian", "velocity", "mass_velocity", "viscoelastic", "tsuji")
+
+
 #: The paper's reference impact speed, m/s.
 TABLE1_SPEED = 1.66
 
@@ -55,6 +59,11 @@ class Params:
     radius2: float = math.inf
     density2: float = 1.0
     omega2: float = 0.0
+    # The normal damping: "hertzian" (C_H) or one of LAMMPS's ("velocity", "mass_velocity",
+    # "viscoelastic", "tsuji"), whose coefficient eta_n is in LAMMPS's units (SI; tsuji: the
+    # restitution coefficient that sets alpha)
+    damping: str = "hertzian"
+    eta_n: float = 0.0
 
     def __post_init__(self):
         if self.normal not in NORMAL_LAWS:
@@ -63,6 +72,10 @@ class Params:
             raise ValueError("tangential must be 'rigid' or 'mindlin'")
         if self.tangential == "mindlin" and not self.G_star > 0:
             raise ValueError("G_star must be > 0 with tangential = 'mindlin'")
+        if self.damping not in DAMPING_MODELS:
+            raise ValueError(f"damping must be one of {DAMPING_MODELS}")
+        if self.damping != "hertzian" and self.C_H != 0:
+            raise ValueError("C_H must be 0 with a LAMMPS damping")
         if self.rolling_moments not in ROLLING_MOMENTS:
             raise ValueError(f"rolling_moments must be one of {ROLLING_MOMENTS}")
         if self.friction_load not in FRICTION_LOADS:
