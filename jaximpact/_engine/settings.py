@@ -78,6 +78,8 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
     Under ``jit``/``grad`` the values are traced and only the switches decide.
     """
     m, s = scene.model, scene.solver
+    if m.damping != "hertzian":  # (a scene changed by Scene.replace is checked here)
+        scene._check_lammps_damping()
     if m.tangential == "mindlin":
         check_range(
             "contact.G_star (model.tangential = 'mindlin')", params["G_star"], positive=True
