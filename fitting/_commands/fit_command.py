@@ -13,6 +13,7 @@ from .fit_steps import (
     _fit_profile,
     _prepare_posterior,
     _run_fit,
+    _scene_record,
     _write_outputs,
 )
 from .words import EMBEDDED_DATA, _parse_init, _parse_priors, _swallowed, split_names
@@ -58,6 +59,7 @@ def cmd_fit(args) -> int:
     )
 
     scene_path, data_path, names, priors, scene, alternatives = _fit_inputs(args)
+    scene_record = _scene_record(scene_path)  # its text as loaded, before the fit
     progress = not args.no_progress
     if args.posterior:  # the sampler's program compiles while the fit runs
         _prepare_posterior(args, scene, data_path, names, priors)
@@ -65,6 +67,7 @@ def cmd_fit(args) -> int:
     print(f"scene: {describe_scene_source(scene_path)}")
     print(summary(result))
     document = result_dict(result)
+    document["scene"] = scene_record  # what `jaximpact export` rebuilds the scene from
     drawn = lambda what, draw: _drawn(what, draw, progress)  # noqa: E731
     outputs = [(args.plot, drawn("the fitted model", lambda path: plot_fit(path, result)))]
     failed = [] if result.converged else [f"fit {result.message}"]

@@ -78,6 +78,21 @@ def _sample(args, scene, names, priors, result):
     )  # fmt: skip
 
 
+def _scene_record(scene_path) -> dict:
+    """The fit JSON's ``scene``: the scene the fit started from, as given (``source``: an
+    embedded name, or the file as the user wrote it; ``embedded``: whether it is a name) and
+    its TOML text (``toml``), so that the JSON alone rebuilds the fitted scene (``jaximpact
+    export lammps``) after the file has moved or changed. The fitted values are not in the
+    text: they are ``params[NAME].value``."""
+    from jaximpact._io.scene_files import embedded_scenes
+    from jaximpact._io.scene_files import scene_path as path_of
+
+    name = "table1" if scene_path is None else str(scene_path)
+    embedded = isinstance(scene_path, (str, type(None))) and name in embedded_scenes()
+    text = path_of(scene_path).read_text(encoding="utf-8")
+    return {"source": name, "embedded": embedded, "toml": text}
+
+
 def _write_outputs(outputs) -> None:
     """Each ``(path, write)`` with a path: written, and said so (a failure names the path)."""
     from jaximpact._io.paths import write_failed
