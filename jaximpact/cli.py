@@ -7,6 +7,7 @@ commands:
             --posterior (sequential Monte Carlo), --profile NAME
   design    choose the impacts to measure next (D-optimal, from candidate rows)
   wall-law  a wall law for CFD codes: capture speed, rebound tables, C/OpenFOAM/Fluent code
+  export    a fitted model as another code's input: export lammps FIT.json (LAMMPS commands)
   show      a scene as resolved: derived quantities, solver, the terms it compiles
   scenes    the embedded scenes, by name (every SCENE argument takes a name or a path)
 

@@ -248,7 +248,7 @@ def export_lines(
     if not -1.0 < poisson < 0.5:
         raise ExportError(f"--poisson must be in (-1, 0.5), got {poisson!r}")
     lines = _header(scene, document, geometry, fit_name, scene_source)
-    if law.normal == "jkr":
+    if law.normal == "jkr" and getattr(scene.model, "jkr_release", "snap_off") == "snap_off":
         lines.append(
             "# NOTE: LAMMPS's JKR contact ends at the pull-off force minimum, jaximpact's at the"
         )
