@@ -298,6 +298,8 @@ def jaximpact_rows(normal, damping, impacts):
              "adhesion": normal != "hertz", "rolling_moments": "none"}  # fmt: skip
     contact = {"K": K, "f0": 0.0, "C_A": 0.0, "C_H": 0.0, "friction": 0.0,
                "w": W if normal != "hertz" else 0.0}  # fmt: skip
+    if normal == "jkr" and "jkr_release" in getattr(ji.Model, "__dataclass_fields__", {}):
+        model["jkr_release"] = "pull_off"  # LAMMPS's JKR contact ends at the force minimum
     if has_damping:
         model["damping"] = "hertzian" if damping == "none" else damping
         if damping != "none":

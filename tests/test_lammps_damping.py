@@ -169,3 +169,42 @@ def test_a_sphere_the_damping_stops_is_captured_not_rebounding():
     assert 0 < float(out.cor_n[3]) < 0.01
     ref = reference("brach_dunn", 0.0, "velocity", 3e-2, 1.0, 0.0, 0.0)
     assert ref.status == "failed" and ref.vn_out < 1e-6  # creeping: no rebound speed
+
+
+def test_jkr_pull_off_release_against_its_closed_form_and_the_reference():
+    # model.jkr_release = "pull_off" (LAMMPS's JKR): the contact ends where the force is least,
+    # a = (9 pi w r^2 / (8 E*))^(1/3), F = -1.5 pi w r; an elastic impact then loses the JKR
+    # potential there (less than at the snap-off): e = sqrt(1 - 2 V(n_p) / (m v^2))
+    w, E = 0.1, 0.75 * K
+    a_p, n_p, force = R.jkr.pull_off(RADIUS, E, w)
+    assert force == pytest.approx(-1.5 * math.pi * w * RADIUS, rel=1e-12)
+    assert a_p == pytest.approx((9 * math.pi * w * RADIUS**2 / (8 * E)) ** (1 / 3), rel=1e-12)
+    assert R.jkr.snap_off(RADIUS, E, w)[1] < n_p < 0
+    params = R.Params(
+        radius=RADIUS, density=DENSITY, K=K, rolling_moments="none", normal="jkr", w=w,
+        jkr_release="pull_off",
+    )  # fmt: skip
+    barrier = params.jkr_barrier
+    assert 0 < barrier < R.jkr.energy_loss(RADIUS, E, w)
+    speed = np.array([0.01, 0.03, 0.3, 3.0])
+    base = scene("jkr", w, "hertzian", 0.0).replace(model={"jkr_release": "pull_off"})
+    out = ji.simulate(base, speed)
+    closed = np.sqrt(1.0 - 2.0 * barrier / (MASS * speed**2))
+    np.testing.assert_allclose(np.asarray(out.cor_n), closed, rtol=0, atol=2e-8)
+    np.testing.assert_allclose(
+        np.asarray(out.loss_adhesion_damping), barrier, rtol=1e-9
+    )  # the ledger's JKR loss is the potential at the release
+    # damped, oblique and spinning: the engine against the exact reference
+    damped = scene("jkr", w, "tsuji", 0.7).replace(model={"jkr_release": "pull_off"})
+    out = ji.simulate(damped, np.array([0.02, 0.5, 2.0]), 35.0, 1e4)
+    for i, v in enumerate([0.02, 0.5, 2.0]):
+        p = R.Params(
+            radius=RADIUS, density=DENSITY, K=K, friction=0.3, rolling_moments="none",
+            normal="jkr", w=w, damping="tsuji", eta_n=0.7, jkr_release="pull_off",
+        )  # fmt: skip
+        ref = R.simulate_impact(p, v, 35.0, 1e4)
+        assert ref.status == "rebound" and int(out.status[i]) == 0
+        assert abs(float(out.vn_out[i]) - ref.vn_out) / v < 5e-8
+        assert abs(float(out.omega_out[i]) - ref.omega_out) * RADIUS / v < 5e-8
+    with pytest.raises(ji.SceneError, match='jkr_release = "pull_off" is for model.normal'):
+        TABLE1.replace(model={"jkr_release": "pull_off"})

@@ -5,8 +5,8 @@ import functools
 
 import numpy as np
 
+from .._model.arguments import check_simulate_arguments
 from .._model.ranges import implausible
-from .._model.scene import check_simulate_arguments
 from . import simulate as _simulate
 
 

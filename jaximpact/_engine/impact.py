@@ -250,9 +250,7 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
         captured = event_hit & (
             (y["n"] - separation > dyn.capture_margin(terms, p, y)) | ~exit_["ok"]
         )
-    elif terms.lammps_damping:
-        # A LAMMPS damping acts down to n = 0 (Hertz's force vanishes there): a sphere whose
-        # normal energy it takes inside the shell never leaves (it creeps toward n = 0).
+    elif terms.lammps_damping:  # it can take the normal energy in the shell: no exit
         captured = event_hit & ~exit_["ok"]
     else:
         captured = False

@@ -110,6 +110,7 @@ def required_terms(scene: Scene, params: dict, angle_deg, omega0) -> dyn.Terms:
         normal=m.normal,
         target=scene.target is not None,
         damping=m.damping,
+        jkr_release=m.jkr_release,
     )
 
 

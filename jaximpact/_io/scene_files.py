@@ -50,6 +50,7 @@ ALLOWED = {
         "tangential",
         "normal",
         "damping",
+        "jkr_release",
     },
     "impact": {"speed", "angle_deg", "omega0"},
     "target": {"radius", "density", "omega0"},
@@ -282,7 +283,8 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
     for key in ("rotation", "adhesion"):
         if key in m and not isinstance(m[key], bool):
             raise SceneError(f"model.{key} must be true or false, got {m[key]!r}")
-    for key in ("rolling_moments", "friction_load", "tangential", "normal", "damping"):
+    keys = ("rolling_moments", "friction_load", "tangential", "normal", "damping", "jkr_release")
+    for key in keys:
         if key in m and not isinstance(m[key], str):
             raise SceneError(f"model.{key} must be a string, got {m[key]!r}")
     normal = m.get("normal", "brach_dunn")
@@ -325,6 +327,7 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
         tangential=m.get("tangential", "rigid"),
         normal=normal,
         damping=damping,
+        jkr_release=m.get("jkr_release", "snap_off"),
     )
     if model.tangential == "mindlin" and not G_star > 0:
         raise SceneError(

@@ -62,6 +62,9 @@ class Terms(eqx.Module):
     # model.damping: "hertzian" (Brach-Dunn's C_H) or one of LAMMPS's normal damping models
     # (laws.LAMMPS_DAMPING), whose coefficient is ScaledParameters.eta_n.
     damping: str = eqx.field(static=True, default="hertzian")
+    # model.jkr_release: where a JKR contact ends: "snap_off" (displacement control, the least
+    # overlap of the stable branch) or "pull_off" (load control, the force's minimum: LAMMPS).
+    jkr_release: str = eqx.field(static=True, default="snap_off")
 
     @property
     def lammps_damping(self):
@@ -186,10 +189,12 @@ def jkr_contact_radius(terms: Terms, p: ScaledParameters, n, peak=None):
 
 
 def jkr_snap_off(terms: Terms, p: ScaledParameters, peak=None):
-    """``(n_c, a_c)``: the JKR snap-off overlap (< 0 without plastic shift) and contact
-    radius."""
+    """``(n_c, a_c)``: the overlap (< 0 without plastic shift) and contact radius where a JKR
+    contact ends: the snap-off, or the pull-off with ``model.jkr_release = "pull_off"``."""
     r, s = jkr_curve(terms, p, peak)
     lam, mu = laws.jkr_scales(r, 0.75 * p.K, p.w_adhesion)
+    if terms.jkr_release == "pull_off":  # the force's minimum (load control)
+        return s + laws.JKR_PULL_OFF * mu, lam * laws.JKR_PULL_OFF_RADIUS
     return s + laws.JKR_SNAP_OFF * mu, lam * math.pi ** (1.0 / 3.0) / 2.0
 
 
@@ -208,7 +213,8 @@ def separation(terms: Terms, p: ScaledParameters, peak=None):
     if terms.jkr:
         r, s = jkr_curve(terms, p, peak)
         _, mu = laws.jkr_scales(r, 0.75 * p.K, p.w_adhesion)
-        return s + mu * (laws.JKR_SNAP_OFF + terms.contact_floor)
+        release = laws.JKR_PULL_OFF if terms.jkr_release == "pull_off" else laws.JKR_SNAP_OFF
+        return s + mu * (release + terms.contact_floor)
     return terms.contact_floor
 
 

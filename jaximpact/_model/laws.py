@@ -259,6 +259,11 @@ def mindlin_slip_rate(xi, slip, load_limit, k_t, cap_rate, cap_width, slip_width
 
 JKR_SNAP_OFF = -0.75 * math.pi ** (2.0 / 3.0)  # snap-off overlap over mu
 JKR_TOUCH = (2.0 * math.pi) ** (1.0 / 3.0)  # a / lam at zero overlap (snap-in)
+# The load-controlled pull-off, where the force is least (``-1.5 pi w r``): ``a / lam =
+# (9 pi / 8)^(1/3)`` and ``d = x^2 - sqrt(2 pi x)`` there (``model.jkr_release = "pull_off"``,
+# LAMMPS's rule: its JKR contact ends there, not at the snap-off further out).
+JKR_PULL_OFF_RADIUS = (9.0 * math.pi / 8.0) ** (1.0 / 3.0)
+JKR_PULL_OFF = JKR_PULL_OFF_RADIUS**2 - math.sqrt(2.0 * math.pi * JKR_PULL_OFF_RADIUS)
 
 
 def jkr_scales(radius, E, w):

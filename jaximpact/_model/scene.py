@@ -25,6 +25,9 @@ NORMAL_LAWS = ("brach_dunn", "dmt", "jkr", "thornton_ning")
 #: The normal damping of ``model.damping``: Brach-Dunn's Hertzian damping (``contact.C_H``) or
 #: one of LAMMPS's damping models (``contact.eta_n``; ``laws.LAMMPS_DAMPING``).
 DAMPING_MODELS = ("hertzian", "velocity", "mass_velocity", "viscoelastic", "tsuji")
+#: Where a JKR contact ends (``model.jkr_release``): the snap-off (displacement control) or the
+#: pull-off (load control: the force's minimum, LAMMPS's rule).
+JKR_RELEASES = ("snap_off", "pull_off")
 SolverMethod = Literal["auto", "tsit5", "dopri5", "dopri8", "rk4", "kvaerno3", "kvaerno5"]
 
 
@@ -210,6 +213,9 @@ class Model(eqx.Module):
       ``-eta ndot`` with ``eta`` = ``eta_n``, ``eta_n m``, ``eta_n a m`` or ``alpha(eta_n)
       sqrt(m K a)`` (``contact.eta_n``; ``contact.C_H`` must then be 0); not with
       Thornton-Ning; docs/physics.md, "LAMMPS damping".
+    - `jkr_release`: where a JKR contact ends as the sphere leaves: ``"snap_off"`` (default:
+      the least overlap of the stable branch, displacement control) or ``"pull_off"`` (where
+      the force is least, ``-1.5 pi w r``: load control, as LAMMPS's ``jkr`` does).
     """
 
     rotation: bool = eqx.field(static=True, default=True)
@@ -220,8 +226,19 @@ class Model(eqx.Module):
     tangential: str = eqx.field(static=True, default="rigid")
     normal: str = eqx.field(static=True, default="brach_dunn")
     damping: str = eqx.field(static=True, default="hertzian")
+    jkr_release: str = eqx.field(static=True, default="snap_off")
 
     def __check_init__(self):
+        if self.jkr_release not in JKR_RELEASES:
+            raise SceneError(
+                "model.jkr_release must be 'snap_off' or 'pull_off', got "
+                f"{self.jkr_release!r}"
+            )
+        if self.jkr_release != "snap_off" and self.normal != "jkr":
+            raise SceneError(
+                f'model.jkr_release = "{self.jkr_release}" is for model.normal = "jkr" '
+                f'(the scene has "{self.normal}")'
+            )
         if self.damping not in DAMPING_MODELS:
             raise SceneError(
                 f"model.damping must be one of {', '.join(repr(d) for d in DAMPING_MODELS)}, "
@@ -304,60 +321,6 @@ def _argument_shape(name: str, value) -> tuple:
     if 0 in shape:
         raise SceneError(f"{name} is empty (shape {shape}): give at least one value")
     return tuple(shape)
-
-
-#: The scene's float parameters, by field name, as ``simulate`` broadcasts them.
-SCENE_ARRAYS = (
-    ("particle", "radius"),
-    ("particle", "density"),
-    ("contact", "K"),
-    ("contact", "f0"),
-    ("contact", "C_A"),
-    ("contact", "C_H"),
-    ("contact", "friction"),
-    ("contact", "G_star"),
-    ("contact", "w"),
-    ("contact", "p_y"),
-    ("contact", "eta_n"),
-    ("model", "lambda_"),
-    ("target", "radius"),
-    ("target", "density"),
-    ("target", "omega0"),
-)
-
-
-def check_simulate_arguments(scene, speed=None, angle_deg=None, omega0=None) -> None:
-    """Check what ``simulate`` was given before anything is converted, naming the argument:
-    a scene that is not a `Scene`, an impact argument that is text, booleans or empty, and
-    arguments and scene parameters whose shapes do not broadcast together. Traced arguments
-    pass (only their shapes are checked); the values are checked by `check_impact`.
-
-    Raises:
-        SceneError: naming the argument (and, for shapes, every non-scalar one).
-    """
-    if not isinstance(scene, Scene):
-        raise SceneError(
-            "scene must be a jaximpact.Scene (jaximpact.load_scene(NAME or PATH), "
-            f"jaximpact.table1_scene()), got {type(scene).__name__}"
-        )
-    shapes = {}
-    for name, value in (("speed", speed), ("angle_deg", angle_deg), ("omega0", omega0)):
-        if value is not None:
-            shapes[name] = _argument_shape(name, value)
-    for section, field in SCENE_ARRAYS:
-        if getattr(scene, section) is None:
-            continue
-        shapes[f"{section}.{field.rstrip('_')}"] = tuple(
-            np.shape(getattr(getattr(scene, section), field))
-        )
-    try:
-        np.broadcast_shapes(*shapes.values())
-    except ValueError:
-        given = ", ".join(f"{name} {shape}" for name, shape in shapes.items() if shape)
-        raise SceneError(
-            f"shapes that do not broadcast together: {given}; give scalars, or arrays of one "
-            "shape (one value per impact)"
-        ) from None
 
 
 class Solver(eqx.Module):
@@ -522,9 +485,10 @@ class Scene(eqx.Module):
         else:
             w = c.w
             f0 = (c.w**2 * c.K * r / (2 * jnp.pi)) ** (1 / 3) if law == "brach_dunn" else 0.0
-        return self.replace(
-            contact={"f0": f0, "w": w if law != "brach_dunn" else 0.0}, model={"normal": law}
-        )
+        model = {"normal": law}
+        if law != "jkr":  # the release rule is JKR's
+            model["jkr_release"] = "snap_off"
+        return self.replace(contact={"f0": f0, "w": w if law != "brach_dunn" else 0.0}, model=model)
 
     def replace(self, **sections):
         """A copy with fields replaced: ``scene.replace(contact={"f0": 1.0}, solver={...})``."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from .jkr import energy_loss, snap_off
+from .jkr import energy_loss, potential, pull_off, snap_off
 
 #: Values of ``Params.rolling_moments``.
 ROLLING_MOMENTS = ("none", "analytical", "lambda")
@@ -64,6 +64,9 @@ class Params:
     # restitution coefficient that sets alpha)
     damping: str = "hertzian"
     eta_n: float = 0.0
+    # Where a JKR contact ends: "snap_off" (the least overlap of the stable branch) or
+    # "pull_off" (where the force is least: load control, LAMMPS's rule)
+    jkr_release: str = "snap_off"
 
     def __post_init__(self):
         if self.normal not in NORMAL_LAWS:
@@ -72,6 +75,8 @@ class Params:
             raise ValueError("tangential must be 'rigid' or 'mindlin'")
         if self.tangential == "mindlin" and not self.G_star > 0:
             raise ValueError("G_star must be > 0 with tangential = 'mindlin'")
+        if self.jkr_release not in ("snap_off", "pull_off"):
+            raise ValueError("jkr_release must be 'snap_off' or 'pull_off'")
         if self.damping not in DAMPING_MODELS:
             raise ValueError(f"damping must be one of {DAMPING_MODELS}")
         if self.damping != "hertzian" and self.C_H != 0:
@@ -137,6 +142,8 @@ class Params:
         """Where the contact ends: 0, or the JKR snap-off overlap (< 0)."""
         if not self.jkr:
             return 0.0
+        if self.jkr_release == "pull_off":
+            return pull_off(self.reduced_radius, 0.75 * self.K, self.w)[1]
         return snap_off(self.reduced_radius, 0.75 * self.K, self.w)[1]
 
     @property
@@ -145,6 +152,9 @@ class Params:
         impact loses, which a sphere in contact must have to leave."""
         if not self.jkr:
             return 0.0
+        if self.jkr_release == "pull_off":  # the JKR potential there (zero at first touch)
+            r, E = self.reduced_radius, 0.75 * self.K
+            return potential(pull_off(r, E, self.w)[0], r, E, self.w)
         return energy_loss(self.reduced_radius, 0.75 * self.K, self.w)
 
     @property

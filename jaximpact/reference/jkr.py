@@ -53,6 +53,8 @@ __all__ = [
     "restitution",
     "simulate_normal_impact",
     "snap_off",
+    "pull_off",
+    "potential",
     "contact_radius",
     "sticking_velocity",
 ]
@@ -97,6 +99,35 @@ def snap_off(R, E, w) -> tuple[float, float, float]:
     lam, _ = _scales(R, E, w)
     a = _XC * lam
     return a, float(overlap(a, R, E, w)), float(force(a, R, E, w))
+
+
+#: Contact radius (in ``lam``) at the load-controlled pull-off, where the force is least.
+_XP = (9.0 * math.pi / 8.0) ** (1.0 / 3.0)
+
+
+def pull_off(R, E, w) -> tuple[float, float, float]:
+    """The load-controlled pull-off, where the force is least (``-F_c``): ``(a_p, delta_p,
+    P_p)``; a contact that ends there (LAMMPS's rule) ends before the snap-off."""
+    lam, _ = _scales(R, E, w)
+    a = _XP * lam
+    return a, float(overlap(a, R, E, w)), float(force(a, R, E, w))
+
+
+def potential(a, R, E, w) -> float:
+    """The JKR potential (J) at contact radius ``a`` on the stable branch, zero at first touch
+    (``a0 = (2 pi)^(1/3) lam``): ``G(a) - G(a0)`` with ``G' = P dn/da``; at the snap-off it is
+    :func:`energy_loss`."""
+
+    def G(x):
+        K = 4.0 * E / 3.0
+        return (
+            0.4 * K * x**5 / R**2
+            - 8.0 / (3.0 * R) * math.sqrt(3.0 * math.pi * w * K / 8.0) * x**3.5
+            + math.pi * w * x * x
+        )
+
+    lam, _ = _scales(R, E, w)
+    return G(a) - G(_X0 * lam)
 
 
 def contact_radius(delta, R, E, w) -> float:
