@@ -42,12 +42,44 @@ version's, each checked by probing ``lmp`` (benchmarks/lammps_impacts.py, tests/
   10 um sphere), and past JKR's snap-off overlap the force is NaN: a rebound from the JKR wall
   ends in NaN. Use a pair with a large frozen partner for JKR (:func:`impact_script`'s
   ``partner_radius``).
-- Tangential part: ``tangential linear_nohistory 0 0`` on the wall, ``tangential
-  linear_history 0 0 0`` for a pair (no tangential force either way: a pair_style granular JKR
-  contact without a tangential history stops every run with "Neighbor history overflow"
-  (fix_neigh_history.cpp:392), even a run of one step before any contact); the tangential
-  models (Mindlin, friction, rolling, twisting) are not mapped yet, so impacts with tangential
-  motion are refused.
+- Tangential part, without a jaximpact tangential model of LAMMPS's (``model.tangential =
+  "rigid"`` with ``contact.friction = 0``, or any model for a normal impact without spin):
+  ``tangential linear_nohistory 0 0`` on the wall, ``tangential linear_history 0 0 0`` for a
+  pair (no tangential force either way: a pair_style granular JKR contact without a
+  tangential history stops every run with "Neighbor history overflow"
+  (fix_neigh_history.cpp:392), even a run of one step before any contact).
+- Tangential models (issue 54): ``model.tangential = "lammps_linear_history"`` is
+  ``tangential linear_history k_t 0 mu`` (``contact.k_t`` in N/m) and ``"lammps_mindlin"``
+  is ``tangential mindlin k_t0 0 mu`` with ``k_t0 = 8 contact.G_star`` (Pa; LAMMPS's spring is
+  ``k_t0 a``, ``a = sqrt(R delta)``, JKR's own ``a``), ``mu = contact.friction``, the
+  tangential damping ``x_gamma,t = 0``; the same words on the wall and for a pair. ``k_t0`` is
+  always written as a number: the wall's ``NULL`` computes ``E/4 (2 - nu)(1 + nu)``
+  (fix_wall_gran.cpp, FixWallGran constructor), not ``8 G_eff = 2 E / ((2 - nu)(1 + nu))`` of
+  two identical materials (a factor ``(2 - nu)^2 (1 + nu)^2 / 8``, 0.61 at ``nu = 0.3``);
+  the pair's ``NULL`` is ``8 mix_stiffnessG(E, E, nu, nu)`` = ``8 G_eff``. The history rule
+  (``FixWallGran::granular``, ``PairGranular::compute``, identical in both): each step in
+  contact ``xi += v_rel dt`` (``v_rel`` the contact point's slip at the step's half-step
+  velocity), then ``F_t = -k_t xi``, and where ``|F_t| > mu Fncrit`` the history is rescaled
+  to ``xi = -F_t mu Fncrit / (|F_t| k_t)`` (the force held at the cap; a cap of 0 zeroes the
+  history). ``Fncrit`` is ``|Fne + Fdamp|`` for hertz and ``|Fne + 2 F_pulloff|`` for jkr
+  (``F_pulloff = 3 pi coh R``): the adhesive laws load the friction with the elastic force
+  only, without the damping. For dmt the source reads ``|Fne + 2 F_pulloff|`` with
+  ``F_pulloff = 4 pi coh R``, but ``coh`` is a local that only the JKR branch sets
+  (uninitialised for DMT, in FixWallGran::granular and PairGranular::compute alike): this
+  build behaves as ``coh = 0`` there, ``Fncrit = |Fne| = |F_hertz - 4 pi coh R|``
+  (benchmarks/lammps_oblique.py: DMT sliding impacts agree with ``|Fne|`` to 2e-7 of the
+  speed and differ from ``|F_hertz + 4 pi coh R|`` by up to 0.04). The
+  Mindlin spring ``k_t0 a`` shrinks with ``a`` on unloading while the history is kept
+  (``mindlin``; ``mindlin_rescale`` would shrink the history too). The history is zeroed when
+  the contact ends. Torque ``-arm n x F_t`` with the arm the sphere's radius on the wall and
+  ``r - delta/2`` for a pair (pair_granular.cpp ``dist_to_contact``); the pair's slip uses
+  ``r_i omega_i + r_j omega_j``. A jaximpact scene with ``model.tangential = "mindlin"`` or
+  ``"rigid"`` friction is refused for impacts with tangential motion: LAMMPS has no rigid
+  Coulomb law (its nearest is ``linear_history`` with a stiff ``k_t``: the spring's period
+  ``2 pi sqrt(2 m / (7 k_t))`` well below the contact time), and jaximpact's Mindlin law
+  (micro-slip, ``k_t = 8 G* a`` with load-history rules) is not LAMMPS's ``mindlin``; so are
+  ``model.rolling_moments`` other than ``"none"`` (LAMMPS's rolling models are not mapped) and
+  ``model.rotation = false`` (``fix nve/sphere`` always turns the sphere).
 
 Hooke's linear law and Thornton-Ning, the Brach-Dunn adhesion ring and Hertzian ``C_H``
 damping are not mapped (jaximpact has no linear law; LAMMPS has none of the others).
@@ -67,6 +99,10 @@ LAWS = ("hertz", "dmt", "jkr")
 #: Tsuji's ``alpha(e)``, coefficients of ``e^0 .. e^6`` (fix_wall_gran.cpp, pair_granular.cpp).
 TSUJI_POLYNOMIAL = (1.2728, -4.2783, 11.087, -22.348, 27.467, -18.022, 4.8218)
 GEOMETRIES = ("wall", "pair")
+#: LAMMPS's tangential models a jaximpact scene maps to (``"none"``: no tangential force).
+TANGENTIALS = ("linear_history", "mindlin")
+#: jaximpact's ``model.tangential`` of each of :data:`TANGENTIALS`.
+SCENE_TANGENTIALS = {"lammps_linear_history": "linear_history", "lammps_mindlin": "mindlin"}
 _OFFERS = (
     "LAMMPS (29 Sep 2021) offers the normal laws hooke, hertz, hertz/material, dmt and jkr "
     "(jaximpact model.normal = 'brach_dunn' without adhesion, 'dmt', 'jkr')"
@@ -76,8 +112,10 @@ _DAMPING_OFFERS = (
     "(model.damping with contact.eta_n), or none (contact.C_H = 0)"
 )
 _TANGENTIAL = (
-    "LAMMPS's tangential models are not mapped yet (the commands carry 'tangential "
-    "linear_nohistory 0 0': no tangential force)"
+    "LAMMPS has no rigid Coulomb law nor jaximpact's Mindlin micro-slip law; use "
+    "model.tangential = 'lammps_linear_history' (contact.k_t; a stiff k_t approaches rigid "
+    "Coulomb friction) or 'lammps_mindlin' (contact.G_star), which map to LAMMPS's "
+    "linear_history and mindlin"
 )
 
 
@@ -86,13 +124,18 @@ class ContactLaw:
     """A normal contact law in plain numbers (SI): ``normal`` one of :data:`LAWS`, ``K`` the
     Hertz stiffness ``4 E*/3`` (Pa), ``w`` the work of adhesion (J/m^2; dmt, jkr),
     ``damping`` one of :data:`DAMPINGS` or ``"none"``, ``eta_n`` its coefficient (LAMMPS's
-    meaning and units)."""
+    meaning and units); ``tangential`` one of :data:`TANGENTIALS` or ``"none"``, ``k_t`` its
+    stiffness (linear_history: N/m; mindlin: LAMMPS's ``k_t0 = 8 G*``, Pa), ``mu`` the
+    friction coefficient (no tangential damping)."""
 
     normal: str
     K: float
     w: float = 0.0
     damping: str = "none"
     eta_n: float = 0.0
+    tangential: str = "none"
+    k_t: float = 0.0
+    mu: float = 0.0
 
     def __post_init__(self):
         if self.normal not in LAWS:
@@ -101,7 +144,13 @@ class ContactLaw:
             raise ValueError(f"damping must be one of {(*DAMPINGS, 'none')}, got {self.damping!r}")
         if not (math.isfinite(self.K) and self.K > 0):
             raise ValueError(f"K must be a finite number > 0, got {self.K!r}")
-        for name in ("w", "eta_n"):
+        if self.tangential not in (*TANGENTIALS, "none"):
+            raise ValueError(
+                f"tangential must be one of {(*TANGENTIALS, 'none')}, got {self.tangential!r}"
+            )
+        if self.tangential != "none" and not (math.isfinite(self.k_t) and self.k_t > 0):
+            raise ValueError(f"k_t must be a finite number > 0, got {self.k_t!r}")
+        for name in ("w", "eta_n", "k_t", "mu"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
@@ -160,16 +209,50 @@ def contact_law(scene, *, angle_deg: float = 0.0, omega0: float = 0.0) -> Contac
         eta_n = _scalar(getattr(contact, "eta_n", 0.0), "contact.eta_n")
     else:
         raise ValueError(f"model.damping = {damping!r} has no LAMMPS model; {_DAMPING_OFFERS}")
-    _check_tangential(scene, angle_deg, omega0)
+    tangential, k_t, mu = _tangential(scene, angle_deg, omega0)
     w = _scalar(contact.w, "contact.w") if law != "hertz" else 0.0
-    return ContactLaw(law, _scalar(contact.K, "contact.K"), w, damping, eta_n)
+    K = _scalar(contact.K, "contact.K")
+    return ContactLaw(law, K, w, damping, eta_n, tangential, k_t, mu)
 
 
-def _check_tangential(scene, angle_deg, omega0):
+def _tangential(scene, angle_deg, omega0):
+    """``(tangential, k_t, mu)`` of the ContactLaw; refusals as ``_check_tangential``."""
+    model, contact = scene.model, scene.contact
+    name = SCENE_TANGENTIALS.get(model.tangential)
+    if name is None:
+        _check_tangential(scene, angle_deg, omega0)
+        return "none", 0.0, 0.0
+    if name == "linear_history":
+        k_t = _scalar(contact.k_t, "contact.k_t")
+    else:
+        k_t = 8.0 * _scalar(contact.G_star, "contact.G_star")
+    mu = _scalar(contact.friction, "contact.friction")
+    if _moving(scene, angle_deg, omega0):
+        if model.rotation and model.rolling_moments != "none":
+            raise ValueError(
+                f"model.rolling_moments = {model.rolling_moments!r} with tangential motion: "
+                "LAMMPS's rolling models are not mapped yet (use 'none')"
+            )
+        if not model.rotation and mu > 0:
+            raise ValueError(
+                "model.rotation = false with friction and tangential motion: LAMMPS's fix "
+                "nve/sphere always turns the sphere (use model.rotation = true)"
+            )
+    return name, k_t, mu
+
+
+def _moving(scene, angle_deg, omega0):
+    """Whether the impacts have tangential motion or spin (the sphere's or a target's)."""
     if float(angle_deg) == 0.0 and float(omega0) == 0.0:
         target = getattr(scene, "target", None)
         if target is None or _scalar(target.omega0, "target.omega0") == 0.0:
-            return  # a normal impact without spin: no tangential force in either code
+            return False
+    return True
+
+
+def _check_tangential(scene, angle_deg, omega0):
+    if not _moving(scene, angle_deg, omega0):
+        return  # a normal impact without spin: no tangential force in either code
     if scene.model.tangential != "rigid":
         raise ValueError(
             f"model.tangential = {scene.model.tangential!r} with tangential motion (angle "
@@ -232,8 +315,33 @@ def normal_arguments(law: ContactLaw, *, geometry="wall", material=False, poisso
     return f"{words} damping {damping}"
 
 
-_TANGENTIAL_WORDS = "tangential linear_nohistory 0 0"
 _TANGENTIAL_COMMENT = "# tangential models are not mapped yet: no tangential force"
+
+
+def tangential_arguments(law: ContactLaw, *, geometry="wall") -> str:
+    """The tangential words of a ``wall/gran granular`` or ``pair_coeff`` command:
+    ``tangential linear_history k_t 0 mu`` / ``tangential mindlin k_t0 0 mu`` (``k_t0 = 8 G*``
+    as a number, never ``NULL``: see the module's notes), or no tangential force
+    (``linear_nohistory 0 0`` on the wall, ``linear_history 0 0 0`` for a pair)."""
+    _check_geometry(geometry)
+    if law.tangential == "none":
+        if geometry == "wall":
+            return "tangential linear_nohistory 0 0"
+        return "tangential linear_history 0 0 0"
+    return f"tangential {law.tangential} {_num(law.k_t)} 0 {_num(law.mu)}"
+
+
+def _tangential_comment(law: ContactLaw) -> str:
+    if law.tangential == "none":
+        return _TANGENTIAL_COMMENT
+    if law.tangential == "linear_history":
+        spring = f"k_t = {law.k_t:.6g} N/m (contact.k_t)"
+    else:
+        spring = f"k_t0 = 8 G* = {law.k_t:.6g} Pa (8 contact.G_star), spring k_t0 a"
+    return (
+        f"# tangential {law.tangential}: {spring}, no tangential damping, mu = {law.mu:.6g} "
+        "(contact.friction)"
+    )
 
 
 def wall_fix(
@@ -252,9 +360,9 @@ def wall_fix(
     law = _law(law_or_scene, angle_deg, omega0)
     words = normal_arguments(law, geometry="wall", material=material, poisson=poisson)
     return (
-        f"{_TANGENTIAL_COMMENT}\n"
-        f"fix {fix_id} {group} wall/gran granular {words} {_TANGENTIAL_WORDS} "
-        f"zplane {_num(z)} NULL"
+        f"{_tangential_comment(law)}\n"
+        f"fix {fix_id} {group} wall/gran granular {words} "
+        f"{tangential_arguments(law, geometry='wall')} zplane {_num(z)} NULL"
     )
 
 
@@ -266,10 +374,13 @@ def pair_commands(
     LAMMPS's mixing (which drops the 4/3 of the material laws) is never used."""
     law = _law(law_or_scene, angle_deg, omega0)
     words = normal_arguments(law, geometry="pair", material=material, poisson=poisson)
+    comment = _tangential_comment(law)
+    if law.tangential == "none":
+        comment += " (linear_history with kt = 0: see the module's notes)"
     return [
         "pair_style granular",
-        _TANGENTIAL_COMMENT + " (linear_history with kt = 0: see the module's notes)",
-        f"pair_coeff * * {words} tangential linear_history 0 0 0",
+        comment,
+        f"pair_coeff * * {words} {tangential_arguments(law, geometry='pair')}",
     ]
 
 
@@ -352,7 +463,7 @@ def impact_script(
     return "\n".join(lines) + "\n"
 
 
-def _setup_lines(radius, density, z0, speed, partner_radius):
+def _setup_lines(radius, density, z0, speed, partner_radius, x0=0.0, vx=0.0, omega=0.0, nsq=False):
     size = 4.0 * radius if partner_radius is None else 1.01 * partner_radius + 2 * radius
     zlo = -radius if partner_radius is None else -2.02 * partner_radius
     lines = [
@@ -365,7 +476,7 @@ def _setup_lines(radius, density, z0, speed, partner_radius):
         f"region box block {_num(-size)} {_num(size)} {_num(-size)} {_num(size)} "
         f"{_num(zlo)} {_num(z0 + 4.0 * radius)}",
         f"create_box {1 if partner_radius is None else 2} box",
-        f"create_atoms 1 single 0.0 0.0 {_num(z0)}",
+        f"create_atoms 1 single {_num(x0)} 0.0 {_num(z0)}",
         f"set atom 1 diameter {_num(2.0 * radius)} density {_num(density)}",
         "group ball id 1",
     ]
@@ -376,9 +487,86 @@ def _setup_lines(radius, density, z0, speed, partner_radius):
             "group partner id 2",
             "fix hold partner freeze",
         ]
+    lines.append(f"velocity ball set {_num(vx)} 0.0 {_num(-speed)}")
+    if omega != 0.0:
+        lines.append(f"set atom 1 omega 0.0 {_num(omega)} 0.0")
     return lines + [
-        f"velocity ball set 0.0 0.0 {_num(-speed)}",
-        f"neighbor {_num(0.5 * radius)} bin",
+        f"neighbor {_num(0.5 * radius)} {'nsq' if nsq else 'bin'}",
         "neigh_modify every 1 delay 0 check yes",
         "fix integrate ball nve/sphere",
     ]
+
+
+#: The quantities the last line of :func:`oblique_script` prints (``JAXIMPACT k=v ...``).
+OBLIQUE_FIELDS = ("step", "x", "z", "vx", "vz", "wy", "fx", "fz", "ty", "mass")
+
+
+def oblique_script(
+    law_or_scene,
+    speed: float,
+    angle_deg: float,
+    omega0: float,
+    *,
+    radius: float | None = None,
+    density: float | None = None,
+    dt: float,
+    max_steps: int,
+    partner_radius: float | None = None,
+    material=False,
+    poisson=0.3,
+) -> str:
+    """The input script of one oblique, spinning impact (``units si``): as
+    :func:`impact_script`, with the tangential velocity ``speed sin(angle)`` along +x and the
+    spin ``omega0`` about +y (jaximpact's signs: ``vx - r omega_y`` is the contact point's
+    slip, so a positive ``omega0`` with a positive angle is the rolling sense), the normal
+    speed ``speed cos(angle)`` down -z. The sphere starts 1.5 steps of flight above contact, at
+    ``x = -1.5 vx dt`` so that the contact starts at x = 0 (on the top of a frozen partner,
+    whose neighbour list is ``nsq``: a partner of many radii would need too many bins).
+
+    The run stops (``fix halt``) at the last step in contact: when the next step's position
+    ``x + dt (v + dt f / (2 m))`` leaves the contact moving away (the wall's ``z > r``, JKR's
+    pull-off distance; for a partner the distance from its centre), else after ``max_steps``.
+    The last line printed is ``JAXIMPACT`` with :data:`OBLIQUE_FIELDS` as ``k=v`` (17
+    digits): position, velocity, spin ``omega_y``, force and torque ``T_y`` of that step, from
+    which the exit state is ``v + s dt f / m``, ``omega + s dt T_y / I`` (``s`` the step's
+    fraction to the exit)."""
+    law = _law(law_or_scene, angle_deg, omega0)
+    if radius is None or density is None:
+        radius = _scalar(law_or_scene.particle.radius, "particle.radius")
+        density = _scalar(law_or_scene.particle.density, "particle.density")
+    if not (speed > 0 and dt > 0 and max_steps > 0 and -90.0 < angle_deg < 90.0):
+        raise ValueError("speed, dt and max_steps must be > 0, angle_deg in (-90, 90)")
+    vn = speed * math.cos(math.radians(angle_deg))
+    vx = speed * math.sin(math.radians(angle_deg))
+    z0 = radius + 1.5 * vn * dt
+    lines = _setup_lines(radius, density, z0, vn, partner_radius, x0=-1.5 * vx * dt, vx=vx,
+                         omega=omega0, nsq=partner_radius is not None)  # fmt: skip
+    lines[0] = f"# jaximpact: one oblique impact, LAMMPS {VERSION} GRANULAR"
+    h = _num(dt)
+    xn = f"(x[1]+{h}*(vx[1]+0.5*{h}*fx[1]/mass[1]))"
+    zn = f"(z[1]+{h}*(vz[1]+0.5*{h}*fz[1]/mass[1]))"
+    if partner_radius is None:
+        leave = radius + max(wall_pulloff_distance(law, radius), 0.0)
+        lines.append(wall_fix(law, material=material, poisson=poisson))
+        left = f"({zn}>{_num(leave)})&&(vz[1]>0)"
+    else:
+        reff = radius * partner_radius / (radius + partner_radius)
+        leave = partner_radius + radius - min(pair_pulloff_overlap(law, reff), 0.0)
+        lines += pair_commands(law, material=material, poisson=poisson)
+        c = _num(partner_radius)
+        left = (f"(sqrt({xn}^2+({zn}+{c})^2)>{_num(leave)})"
+                f"&&(x[1]*vx[1]+(z[1]+{c})*vz[1]>0)")  # fmt: skip
+    lines += [
+        f"timestep {h}",
+        "fix state ball store/state 1 omegay tqy",  # current at every step, unlike a compute
+        f"variable left equal {left}",
+        "fix stop all halt 1 v_left > 0.5 error soft",
+    ]
+    values = {"x": "x[1]", "z": "z[1]", "vx": "vx[1]", "vz": "vz[1]", "wy": "f_state[1][1]",
+              "fx": "fx[1]", "fz": "fz[1]", "ty": "f_state[1][2]", "mass": "mass[1]"}  # fmt: skip
+    for k, expr in values.items():
+        lines += [f"variable {k}v equal {expr}", f"variable {k}f format {k}v %.17g"]
+    printed = " ".join(f"{k}=${{{k}f}}" for k in values)
+    lines += ["thermo 1000000000", f"run {int(max_steps)}",
+              f'print "JAXIMPACT step=$(step) {printed}"']  # fmt: skip
+    return "\n".join(lines) + "\n"
