@@ -119,6 +119,9 @@ _TABLE = (
     # metals' 0.1-10 GPa inside the default prior
     ("p_y", "contact", "p_y", (1e7, 1e11), "log",
      'limiting contact pressure (model.normal = "thornton_ning")'),
+    ("k_t", "contact", "k_t", (1e0, 1e7), "log",
+     'tangential stiffness of LAMMPS\'s history spring (model.tangential = '
+     '"lammps_linear_history")'),
     # its unit is model.damping's (LAMMPS's eta_n0): no default prior (give one)
     ("eta_n", "contact", "eta_n", None, "log",
      'coefficient of a LAMMPS normal damping (model.damping = "velocity", "mass_velocity", '
@@ -161,10 +164,15 @@ def unused_reason(scene, name: str) -> str | None:
     nothing), or None where it does: ``G_star`` without the Mindlin spring, ``w`` with the
     Brach-Dunn ring, ``f0`` with another normal law, ``p_y`` without Thornton-Ning's."""
     model = scene.model
-    if name == "G_star" and model.tangential != "mindlin":
+    if name == "G_star" and model.tangential not in ("mindlin", "lammps_mindlin"):
         return (
-            f'G_star is used only with model.tangential = "mindlin" (the scene has '
-            f'"{model.tangential}"); e.g. the embedded scene kharaz2001_mindlin'
+            f'G_star is used only with model.tangential = "mindlin" or "lammps_mindlin" (the '
+            f'scene has "{model.tangential}"); e.g. the embedded scene kharaz2001_mindlin'
+        )
+    if name == "k_t" and model.tangential != "lammps_linear_history":
+        return (
+            'k_t is used only with model.tangential = "lammps_linear_history" (the scene has '
+            f'"{model.tangential}")'
         )
     if name == "w" and model.normal == "brach_dunn":
         return (

@@ -228,6 +228,17 @@ def _outputs(terms: dyn.Terms, prob: _Problem, speed, omega0, sol):
     return ImpactResult(status=status.astype(jnp.int32), steps=sol.stats["num_steps"], **out)
 
 
+def _spring_exit(terms: dyn.Terms, p, y: dict, exit_: dict, separated, spring):
+    """The spring at the end of the contact, in place: unloaded once separated (jaximpact's
+    returned its energy ``spring`` to the normal motion in the exit shell; LAMMPS's drops its
+    history, and that energy is booked in ``loss_friction``), JKR's exit stretch's share."""
+    if terms.jkr:
+        _jkr_spring_exit(terms, p, y, exit_, separated)
+    elif terms.lammps_spring and "loss_friction" in y:
+        y["loss_friction"] = y["loss_friction"] + jnp.where(separated, spring, 0.0)
+    y["xi"] = jnp.where(separated, 0.0, y["xi"])
+
+
 def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     """The state at the end of the impact (the exit shell crossed in closed form after a
     rebound, the entry shell's contributions added), its time and its status code."""
@@ -242,7 +253,9 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     peak = y.get("peak")
     balance = dyn.balanced_normal_energy(terms, p, y)
     xi = y["xi"] if terms.mindlin else None
-    exit_ = _shell_exit(terms, p, y["ndot"], spring, xi, peak, balance)
+    # jaximpact's spring returns its energy to the normal motion in the shell; LAMMPS's loses it
+    returned = None if terms.lammps_spring else spring
+    exit_ = _shell_exit(terms, p, y["ndot"], returned, xi, peak, balance)
     if terms.adhesion:
         # At the event one of the two is ~0 and the other positive. A sphere whose normal
         # energy runs out inside the shell below the floor is captured too.
@@ -255,10 +268,8 @@ def _final_state(terms: dyn.Terms, prob: _Problem, sol):
     else:
         captured = False
     separated = event_hit & ~captured
-    if terms.mindlin and terms.jkr:
-        _jkr_spring_exit(terms, p, y, exit_, separated)
-    if terms.mindlin:  # the spring's energy went into the normal motion in the shell
-        y["xi"] = jnp.where(separated, 0.0, y["xi"])
+    if terms.mindlin:
+        _spring_exit(terms, p, y, exit_, separated, spring)
     if terms.tangential and not terms.mindlin:
         exit_.update(_shell_friction(terms, p, y, exit_, y["ndot"]))
         for k in ("vt", "w", "w2"):

@@ -84,8 +84,14 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None, peak=None) -
     spring_lost = None
     if xi is not None:
         half_xi2 = 0.5 * xi * xi
-        energy = energy + 2.0 * half_xi2 * 8.0 * p.G_star * (a_sep - a_c)
-        spring_lost = half_xi2 * 8.0 * p.G_star * a_c
+        if terms.lammps_spring:  # no normal force: the spring's energy is lost at the release
+            k_sep, k_c = _spring_constant(terms, p, a_sep), _spring_constant(terms, p, a_c)
+            spring_lost = half_xi2 * k_sep
+            k_mean = 0.5 * (k_sep + k_c)
+        else:
+            energy = energy + 2.0 * half_xi2 * 8.0 * p.G_star * (a_sep - a_c)
+            spring_lost = half_xi2 * 8.0 * p.G_star * a_c
+            k_mean = 4.0 * p.G_star * (a_sep + a_c)
     if terms.lammps_damping:  # eta_n at the mean of the two ends, at the mean speed
         eta = 0.5 * (
             laws.lammps_damping_coefficient(terms.damping, a_sep, p.eta_n, p.K)
@@ -117,9 +123,15 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None, peak=None) -
     shell["width"] = width
     if spring_lost is not None:  # with the spring's tangential impulse across the stretch
         shell["spring_lost"] = spring_lost
-        k_mean = 4.0 * p.G_star * (a_sep + a_c)
         shell["spring_impulse"] = -k_mean * xi * shell["time"]
     return shell
+
+
+def _spring_constant(terms: dyn.Terms, p: ScaledParameters, a):
+    """The spring's stiffness at contact radius ``a``: ``8 G* a``, or LAMMPS's ``k_t``."""
+    if terms.spring == "lammps_linear_history":
+        return p.k_t + 0.0 * a
+    return 8.0 * p.G_star * a
 
 
 def _shell_exit(
@@ -237,7 +249,7 @@ def _shell_spring(terms: dyn.Terms, p: ScaledParameters, y: dict, shell: dict):
     n = jnp.full_like(y["ndot"], eps)
     w = y["w"] if terms.rotation else jnp.zeros_like(n)
     slip = dyn.slip(terms, p, y, w)
-    k_t = laws.mindlin_stiffness(n, p.radius, p.G_star, eps)
+    k_t = dyn.spring_stiffness(terms, p, n)[0]
     cap = dyn.friction_limit(terms, p, n, y["ndot"], dyn.spins(terms, y)[1]) / k_t
     return jnp.clip(slip * shell["time"], -cap, cap)
 

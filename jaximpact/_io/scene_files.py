@@ -40,6 +40,7 @@ ALLOWED = {
         "w",
         "p_y",
         "eta_n",
+        "k_t",
     },
     "model": {
         "rotation",
@@ -70,8 +71,8 @@ ALLOWED = {
 # `jaximpact fit --posterior`), as text "loguniform:LO:HI" or "normal:MU:SD" (SI units); the
 # simulator ignores them. The spec itself is checked by `fitting` (it names the scene key).
 PRIOR_NAMES = {
-    "C_A", "C_H", "f0", "friction", "K", "G_star", "w", "p_y", "eta_n", "lambda", "radius",
-    "density",
+    "C_A", "C_H", "f0", "friction", "K", "G_star", "w", "p_y", "eta_n", "k_t", "lambda",
+    "radius", "density",
 }  # fmt: skip
 ALLOWED["priors"] = PRIOR_NAMES
 REQUIRED_SECTIONS = ("particle", "contact")
@@ -271,6 +272,7 @@ def _contact(data: dict, particle: Particle) -> tuple:
         w=number("contact", "w", 0.0),
         p_y=number("contact", "p_y", 0.0),
         eta_n=number("contact", "eta_n", 0.0),
+        k_t=number("contact", "k_t", 0.0),
     )
     return contact, f0, G_star
 
@@ -329,10 +331,10 @@ def _model(data: dict, contact: Contact, G_star: float) -> Model:
         damping=damping,
         jkr_release=m.get("jkr_release", "snap_off"),
     )
-    if model.tangential == "mindlin" and not G_star > 0:
+    if model.tangential in ("mindlin", "lammps_mindlin") and not G_star > 0:
         raise SceneError(
-            'model.tangential = "mindlin" needs contact.G_star (Pa, > 0) or contact.E1, nu1, '
-            "E2, nu2"
+            f'model.tangential = "{model.tangential}" needs contact.G_star (Pa, > 0) or '
+            "contact.E1, nu1, E2, nu2"
         )
     if model.rolling_moments == "lambda" and "lambda" not in m:
         raise SceneError('model.rolling_moments = "lambda" needs model.lambda (N m)')

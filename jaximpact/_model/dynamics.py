@@ -65,6 +65,16 @@ class Terms(eqx.Module):
     # model.jkr_release: where a JKR contact ends: "snap_off" (displacement control, the least
     # overlap of the stable branch) or "pull_off" (load control, the force's minimum: LAMMPS).
     jkr_release: str = eqx.field(static=True, default="snap_off")
+    # With the spring (``mindlin``): "mindlin" (jaximpact's: 8 G* a, its normal force
+    # -dU/dn, the Coulomb load of friction_load) or LAMMPS's history springs
+    # "lammps_linear_history" (k_t) and "lammps_mindlin" (8 G* a): no normal force, the
+    # Coulomb load LAMMPS's critical normal force (lammps_critical_load).
+    spring: str = eqx.field(static=True, default="mindlin")
+
+    @property
+    def lammps_spring(self):
+        """A LAMMPS history spring (``model.tangential = "lammps_..."``)."""
+        return self.mindlin and self.spring.startswith("lammps_")
 
     @property
     def lammps_damping(self):
@@ -337,6 +347,8 @@ def spring_stiffness(terms: Terms, p: ScaledParameters, n):
     normal force is exactly minus the gradient of its energy. JKR's ``da/dn`` grows like
     ``(n - n_c)^-1/2`` toward the snap-off: the force is singular there but its work, the
     change of ``k_t xi^2 / 2``, is finite (docs/physics.md, "Tangential compliance")."""
+    if terms.spring == "lammps_linear_history":  # constant
+        return p.k_t + jnp.zeros_like(n), jnp.zeros_like(n)
     if terms.jkr:
         return jax.jvp(
             lambda n_: 8.0 * p.G_star * jkr_contact_radius(terms, p, n_), (n,), (jnp.ones_like(n),)
@@ -390,10 +402,24 @@ def _friction_load(terms: Terms, f):
     return jnp.abs(f["F_n"]) if terms.friction_load == "net" else -f["F_H"]
 
 
+def lammps_critical_load(terms: Terms, p: ScaledParameters, f):
+    """LAMMPS's critical normal force ``Fncrit`` (fix wall/gran, pair granular; 29 Sep 2021):
+    ``|F_ne + 2 F_pulloff|`` for the DMT and JKR laws (the elastic and adhesive force, without
+    the damping; ``F_pulloff`` ``2 pi w r`` and ``1.5 pi w r``), else ``|F_ne + F_damp|``."""
+    if terms.normal == "dmt":
+        return jnp.abs(-f["F_H"] - f.get("F_A", 0.0) + 4.0 * math.pi * p.w_adhesion * p.radius)
+    if terms.normal == "jkr":
+        return jnp.abs(-f["F_H"] - f.get("F_A", 0.0) + 3.0 * math.pi * p.w_adhesion * p.radius)
+    return jnp.abs(f["F_n"])
+
+
 def friction_limit(terms: Terms, p: ScaledParameters, n, ndot, w):
     """The Coulomb limit ``f N`` of the tangential force at this normal state (the Mindlin
     spring's cap: without the spring's own normal force)."""
-    return p.friction * _friction_load(terms, _normal_loads(terms, p, n, ndot, w)[0])
+    f = _normal_loads(terms, p, n, ndot, w)[0]
+    if terms.lammps_spring:
+        return p.friction * lammps_critical_load(terms, p, f)
+    return p.friction * _friction_load(terms, f)
 
 
 def contact_loads(terms: Terms, p: ScaledParameters, y):
@@ -453,8 +479,11 @@ def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, spin, w, M):
     """
     n, ndot, xi = y["n"], y["ndot"], y["xi"]
     k_t, dk_dn = spring_stiffness(terms, p, n)
-    f["F_U"] = -0.5 * dk_dn * xi * xi
-    f["F_n"] = f["F_n"] + f["F_U"]
+    if terms.lammps_spring:  # no normal force: the stiffness's change does work on the spring
+        f["stiffening"] = -0.5 * dk_dn * ndot * xi * xi  # booked in loss_friction
+    else:
+        f["F_U"] = -0.5 * dk_dn * xi * xi
+        f["F_n"] = f["F_n"] + f["F_U"]
     F_t = -k_t * xi
     wdot = jnp.zeros_like(n)  # the rate of the spin the ring sees
     if terms.rotation:
@@ -503,6 +532,8 @@ class ImpactField(eqx.Module):
             if terms.mindlin:
                 dy["xi"] = f["slip"] - f["slip_rate"]
                 dy["loss_friction"] = f["k_t"] * y["xi"] * f["slip_rate"]
+                if terms.lammps_spring:
+                    dy["loss_friction"] = dy["loss_friction"] + f["stiffening"]
             else:
                 dy["loss_friction"] = -f["F_t"] * f["slip"]
             # Latch: slide_time follows t until the slip first falls below the width, then

@@ -91,6 +91,7 @@ RANGES = {
     "G_star": Range(0.0, 1e13, "Pa"),  # 0: not given (needed > 0 by tangential = "mindlin")
     "w": Range(0.0, 1e4, "J/m^2"),  # work of adhesion of model.normal = "dmt" or "jkr"
     "p_y": Range(0.0, 1e13, "Pa"),  # limiting contact pressure of "thornton_ning" (0: not given)
+    "k_t": Range(0.0, 1e12, "N/m"),  # LAMMPS's linear_history stiffness (0: not given)
     # a LAMMPS normal damping's coefficient (model.damping); its unit is the model's
     "eta_n": Range(0.0, 1e18, "kg/s, 1/s, 1/(m s) or 1 (model.damping)"),
     # the second sphere of a sphere-sphere impact ([target])

@@ -19,7 +19,12 @@ INERTIA_FACTOR = 0.4  # k^2 / r^2 of a solid sphere (CONVENTIONS)
 
 RollingMoments = Literal["none", "analytical", "lambda"]
 FrictionLoad = Literal["net", "hertz"]
-TANGENTIAL_MODELS = ("rigid", "mindlin")
+#: ``model.tangential``: the rigid Coulomb law, jaximpact's energy-consistent Mindlin spring, or
+#: LAMMPS's history springs (``tangential linear_history`` and ``mindlin``, without tangential
+#: damping), with LAMMPS's Coulomb load and no normal force of the spring.
+TANGENTIAL_MODELS = ("rigid", "mindlin", "lammps_linear_history", "lammps_mindlin")
+#: The spring models (a tangential displacement state ``xi``).
+SPRING_MODELS = TANGENTIAL_MODELS[1:]
 #: The normal contact laws of ``model.normal`` (docs/physics.md, "Normal laws").
 NORMAL_LAWS = ("brach_dunn", "dmt", "jkr", "thornton_ning")
 #: The normal damping of ``model.damping``: Brach-Dunn's Hertzian damping (``contact.C_H``) or
@@ -163,6 +168,8 @@ class Contact(eqx.Module):
     - `p_y`: limiting contact pressure (Pa, > 0) of the Thornton-Ning law (``model.normal =
       "thornton_ning"``): the contact yields where the JKR pressure at its centre reaches it
       (0, the default, means "not given").
+    - `k_t`: the tangential stiffness (N/m, > 0) of ``model.tangential =
+      "lammps_linear_history"`` (LAMMPS's ``k_t``; 0, the default, means "not given").
     - `eta_n`: the coefficient of a LAMMPS normal damping (``model.damping``), as LAMMPS's
       ``damping`` keyword takes it: kg/s (``"velocity"``), 1/s (``"mass_velocity"``),
       1/(m s) (``"viscoelastic"``), or the restitution coefficient in (0, 1] that sets Tsuji's
@@ -178,9 +185,10 @@ class Contact(eqx.Module):
     w: jax.Array = eqx.field(converter=_numbers("contact.w"), default=0.0)
     p_y: jax.Array = eqx.field(converter=_numbers("contact.p_y"), default=0.0)
     eta_n: jax.Array = eqx.field(converter=_numbers("contact.eta_n"), default=0.0)
+    k_t: jax.Array = eqx.field(converter=_numbers("contact.k_t"), default=0.0)
 
     def __check_init__(self):
-        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star", "w", "p_y", "eta_n"):
+        for name in ("K", "f0", "C_A", "C_H", "friction", "G_star", "w", "p_y", "eta_n", "k_t"):
             check_input(f"contact.{name}", name, getattr(self, name))
 
 
@@ -197,7 +205,10 @@ class Model(eqx.Module):
     - `lambda_`: the lambda of the constant-lambda law (N m, >= 0); TOML key ``lambda``.
     - `tangential`: ``"rigid"`` (default: Coulomb friction on a rigid contact) or ``"mindlin"``
       (an elastic tangential spring ``8 G* a`` capped by Coulomb friction; needs
-      ``contact.G_star``; docs/physics.md, "Tangential compliance").
+      ``contact.G_star``; docs/physics.md, "Tangential compliance"), or LAMMPS's history
+      springs ``"lammps_linear_history"`` (``contact.k_t``) and ``"lammps_mindlin"`` (``8 G*
+      a``), capped at ``friction`` times LAMMPS's critical normal force, without the spring's
+      normal force (docs/physics.md, "LAMMPS tangential springs").
     - `normal`: the normal contact law: ``"brach_dunn"`` (default: Hertz, Hertzian damping,
       the adhesion ring ``2 pi a f0`` and its damping) or ``"dmt"`` (Hertz, Hertzian damping
       and the constant DMT adhesion ``2 pi w r`` while in contact, from ``contact.w``; no ring,
@@ -231,8 +242,7 @@ class Model(eqx.Module):
     def __check_init__(self):
         if self.jkr_release not in JKR_RELEASES:
             raise SceneError(
-                "model.jkr_release must be 'snap_off' or 'pull_off', got "
-                f"{self.jkr_release!r}"
+                f"model.jkr_release must be 'snap_off' or 'pull_off', got {self.jkr_release!r}"
             )
         if self.jkr_release != "snap_off" and self.normal != "jkr":
             raise SceneError(
@@ -254,10 +264,10 @@ class Model(eqx.Module):
                 f"model.normal must be one of {', '.join(repr(n) for n in NORMAL_LAWS)}, got "
                 f"{self.normal!r}"
             )
-        if self.normal == "thornton_ning" and self.tangential == "mindlin":
+        if self.normal == "thornton_ning" and self.tangential != "rigid":
             raise SceneError(
                 'model.normal = "thornton_ning" works with model.tangential = "rigid" only, '
-                'got "mindlin"'
+                f'got "{self.tangential}"'
             )
         if self.normal == "thornton_ning" and not self.adhesion:
             raise SceneError(
@@ -265,7 +275,8 @@ class Model(eqx.Module):
             )
         if self.tangential not in TANGENTIAL_MODELS:
             raise SceneError(
-                f"model.tangential must be 'rigid' or 'mindlin', got {self.tangential!r}"
+                f"model.tangential must be one of {', '.join(map(repr, TANGENTIAL_MODELS))}, "
+                f"got {self.tangential!r}"
             )
         if self.rolling_moments not in ("none", "analytical", "lambda"):
             raise SceneError(
@@ -417,10 +428,16 @@ class Scene(eqx.Module):
                 positive=True,
             )
             self._check_yield_after_touch()
-        if self.model.tangential == "mindlin":
+        if self.model.tangential in ("mindlin", "lammps_mindlin"):
             check_range(
-                "contact.G_star (needed by model.tangential = 'mindlin')",
+                f"contact.G_star (needed by model.tangential = '{self.model.tangential}')",
                 self.contact.G_star,
+                positive=True,
+            )
+        if self.model.tangential == "lammps_linear_history":
+            check_range(
+                "contact.k_t (needed by model.tangential = 'lammps_linear_history')",
+                self.contact.k_t,
                 positive=True,
             )
         if self.model.damping != "hertzian":

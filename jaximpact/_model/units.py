@@ -59,6 +59,8 @@ class ScaledParameters(eqx.Module):
     # A LAMMPS normal damping (``model.damping``, ``laws.LAMMPS_DAMPING``): its coefficient in
     # Hertz units (mass 1), as ``laws.lammps_damping_coefficient`` takes it (tsuji: alpha(e)).
     eta_n: jax.Array | None = None
+    # LAMMPS's linear_history tangential stiffness (model.tangential = "lammps_linear_history").
+    k_t: jax.Array | None = None
 
     @staticmethod
     def from_si(
@@ -78,6 +80,7 @@ class ScaledParameters(eqx.Module):
         p_yield=None,
         damping=None,
         eta_n=None,
+        k_t=None,
     ):
         """``damping``, ``eta_n``: a LAMMPS normal damping model and its coefficient (SI, as
         LAMMPS takes it: kg/s, 1/s, 1/(m s), or the restitution coefficient of "tsuji").
@@ -121,4 +124,5 @@ class ScaledParameters(eqx.Module):
             p_yield=p_yield,
             a_yield=a_yield,
             eta_n=eta_scaled,
+            k_t=None if k_t is None else k_t * T**2 / m,
         )

@@ -88,8 +88,12 @@ def output_derivatives(
         "radius": p.radius, "density": p.density, "lambda": p.lam,
         "speed": speed, "angle_deg": angle_deg, "omega0": omega0,
     }  # fmt: skip
-    if p.tangential == "mindlin":
+    if p.tangential in ("mindlin", "lammps_mindlin"):
         x0["G_star"] = p.G_star
+    if p.tangential == "lammps_linear_history":
+        x0["k_t"] = p.k_t
+    if p.damping != "hertzian":
+        x0["eta_n"] = p.eta_n
     if p.normal in ("dmt", "jkr"):
         x0["w"] = p.w
     if p.target:

@@ -86,7 +86,18 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
         out["M"] = -p.lam * p.C_A * a * w
     out["F_n"] = out["F_H"] + out["F_HD"] + out["F_A"] + out["F_AD"]
     out["N"] = abs(out["F_n"]) if p.friction_load == "net" else hertz
+    if p.tangential.startswith("lammps_"):
+        out["N"] = _lammps_critical_load(p, out)
     return out
+
+
+def _lammps_critical_load(p: Params, out: dict) -> float:
+    """LAMMPS's critical normal force: ``|F_ne + 2 F_pulloff|`` for DMT (``F_pulloff = 2 pi w
+    r``) and JKR (``1.5 pi w r``), without the damping; else ``|F_ne + F_damp|``."""
+    if p.normal in ("dmt", "jkr"):
+        pull = (2.0 if p.normal == "dmt" else 1.5) * math.pi * p.w * p.reduced_radius
+        return abs(-out["F_H"] - out["F_A"] + 2.0 * pull)
+    return abs(out["F_n"])
 
 
 def _jkr_forces(p: Params, n: float, ndot: float, w: float, out: dict) -> dict:
@@ -107,6 +118,8 @@ def _jkr_forces(p: Params, n: float, ndot: float, w: float, out: dict) -> dict:
         out["M"] = -p.lam * p.C_A * a * w
     out["F_n"] = out["F_H"] + out["F_HD"] + out["F_A"]
     out["N"] = abs(out["F_n"]) if p.friction_load == "net" else hertz
+    if p.tangential.startswith("lammps_"):
+        out["N"] = _lammps_critical_load(p, out)
     return out
 
 

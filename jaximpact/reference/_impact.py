@@ -42,9 +42,9 @@ def simulate_impact(
         raise ValueError("speed must be > 0")
     if not -90.0 < angle_deg < 90.0:
         raise ValueError("angle_deg must lie in (-90, 90)")
-    if p.tangential == "mindlin":
+    if p.tangential != "rigid":
         if history:
-            raise ValueError("history is not available with tangential = 'mindlin'")
+            raise ValueError(f"history is not available with tangential = {p.tangential!r}")
         return _simulate_mindlin(
             p, speed, angle_deg, omega0, rtol=rtol, atol=atol, method=method, t_max=t_max,
             detect_capture=detect_capture, max_segments=max_segments,

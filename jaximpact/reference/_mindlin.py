@@ -44,10 +44,14 @@ class _MindlinModel:
         return math.sqrt(self.rc * n) if n > 0 else 0.0
 
     def stiffness(self, n):
+        if self.p.tangential == "lammps_linear_history":  # constant, in contact
+            return self.p.k_t if self.contact_radius(n) > 0 else 0.0
         return 8.0 * self.p.G_star * self.contact_radius(n)
 
     def stiffness_slope(self, n):
         p = self.p
+        if p.tangential == "lammps_linear_history":
+            return 0.0
         if p.jkr:  # 1 / (dn/da), dn/da = 2 a / r - sqrt(2 pi w / (E a)) / 2 (> 0 above n_c)
             a = self.contact_radius(n)
             if a <= 0:
@@ -88,7 +92,9 @@ class _MindlinModel:
         fc = self.forces(y)
         xi = self.xi(y, mode)
         F_t = -self.stiffness(n) * xi
-        F_U = -0.5 * self.stiffness_slope(n) * xi * xi
+        # jaximpact's spring pushes the sphere out (-dU/dn); LAMMPS's has no normal force
+        lammps = self.p.tangential.startswith("lammps_")
+        F_U = 0.0 if lammps else -0.5 * self.stiffness_slope(n) * xi * xi
         s = self.slip(y)
         wdot = (-self.r * F_t + fc["M"]) / self.I1 if self.p.rotation else 0.0
         return [
@@ -111,7 +117,7 @@ class _MindlinModel:
         if n <= n_end or self.f == 0:
             return 0.0
         nddot = self.rhs(y, mode)[1]
-        if not p.adhesion:
+        if not p.adhesion and p.damping == "hertzian" and p.tangential == "mindlin":
             kr = p.K * math.sqrt(self.rc)
             if p.friction_load == "hertz":
                 load, load_rate = kr * n**1.5, 1.5 * kr * math.sqrt(n) * ndot

@@ -19,6 +19,10 @@ FRICTION_LOADS = ("net", "hertz")
 NORMAL_LAWS = ("brach_dunn", "dmt", "jkr")
 
 
+#: Values of ``Params.tangential``.
+TANGENTIAL_MODELS = ("rigid", "mindlin", "lammps_linear_history", "lammps_mindlin")
+
+
 #: Values of ``Params.damping``.
 DAMPING_MODELS = ("hertzian", "velocity", "mass_velocity", "viscoelastic", "tsuji")
 
@@ -48,7 +52,10 @@ class Params:
     adhesion: bool = True
     rolling_moments: str = "analytical"
     friction_load: str = "net"
-    tangential: str = "rigid"  # or "mindlin": the elastic spring 8 G* a (see _MindlinModel)
+    # "rigid", "mindlin" (the elastic spring 8 G* a, see _MindlinModel) or LAMMPS's history
+    # springs "lammps_linear_history" (k_t) and "lammps_mindlin" (8 G* a): no normal force of
+    # the spring, Coulomb load LAMMPS's critical normal force
+    tangential: str = "rigid"
     G_star: float = 0.0  # Pa, effective shear modulus (mindlin only)
     # "dmt": constant adhesion 2 pi w r in contact, no ring; "jkr": the JKR force, contact
     # down to the snap-off overlap (< 0)
@@ -67,14 +74,17 @@ class Params:
     # Where a JKR contact ends: "snap_off" (the least overlap of the stable branch) or
     # "pull_off" (where the force is least: load control, LAMMPS's rule)
     jkr_release: str = "snap_off"
+    k_t: float = 0.0  # N/m, LAMMPS's linear_history stiffness
 
     def __post_init__(self):
         if self.normal not in NORMAL_LAWS:
             raise ValueError(f"normal must be one of {NORMAL_LAWS}")
-        if self.tangential not in ("rigid", "mindlin"):
-            raise ValueError("tangential must be 'rigid' or 'mindlin'")
-        if self.tangential == "mindlin" and not self.G_star > 0:
-            raise ValueError("G_star must be > 0 with tangential = 'mindlin'")
+        if self.tangential not in TANGENTIAL_MODELS:
+            raise ValueError(f"tangential must be one of {TANGENTIAL_MODELS}")
+        if self.tangential in ("mindlin", "lammps_mindlin") and not self.G_star > 0:
+            raise ValueError(f"G_star must be > 0 with tangential = {self.tangential!r}")
+        if self.tangential == "lammps_linear_history" and not self.k_t > 0:
+            raise ValueError("k_t must be > 0 with tangential = 'lammps_linear_history'")
         if self.jkr_release not in ("snap_off", "pull_off"):
             raise ValueError("jkr_release must be 'snap_off' or 'pull_off'")
         if self.damping not in DAMPING_MODELS:
