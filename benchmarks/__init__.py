@@ -41,6 +41,7 @@ QUICK = {
     "capture_speed_statuses": (["--scenes", "3"], "not timed; three scenes per law"),
     "dmt_slow_exits": "none: the whole run is about 20 s",
     "lammps_impacts": (["--quick"], "about 1 minute; the script's own: 3 combinations, 4 cases"),
+    "lammps_oblique": (["--quick"], "about 1 minute; the script's own: 3 combinations, 4 cases"),
     "xla_options": (["--rounds", "1"], "not timed; two processes"),
     "loop_kernels": (["--n", "1000", "--repeats", "1"], "not timed; six processes compiling"),
     "isa_comparison": (

@@ -107,3 +107,83 @@ def test_against_jaximpact(normal, damping):
     assert out["status_disagreements"] == 0, out
     tol = max(10 * out["max_conv"], 1e-5)
     assert out["max_diff"] <= tol, out
+
+
+# Oblique impacts with LAMMPS's tangential models (benchmarks/lammps_oblique.py). Measured dt
+# convergence (t_c/400 against t_c/800, relative to the speed): 1e-8 or less for sliding
+# impacts (Hertz), 3e-7 (DMT), up to 4e-3 for sticking ones (first order: the history's
+# Euler update and the stick-slip switches within a step).
+
+
+def _oblique():
+    import lammps_oblique
+
+    return lammps_oblique
+
+
+def _otol(res, k):
+    return max(10 * res[f"{k}_conv"], 1e-6)
+
+
+@pytest.mark.parametrize("tangential, k", [("linear_history", 1e6), ("mindlin", 2.4e11)])
+def test_sliding_throughout_does_not_depend_on_the_spring(tangential, k):
+    from jaximpact._io.lammps import ContactLaw
+
+    B = _oblique()
+    v, angle, omega0, mu = 1.0, 70.0, -1e4, 0.1
+    vn, vt = v * math.cos(math.radians(angle)), v * math.sin(math.radians(angle))
+    law = ContactLaw("hertz", K, tangential=tangential, k_t=k, mu=mu)
+    res = B.lammps_oblique(law, R, RHO, v, angle, omega0)
+    vt_out, w_out = B.sliding_closed(vn, vt, omega0, mu, R)  # e = 1
+    assert res["status"] == ["rebound"] * 3
+    assert res["vt_x"] == pytest.approx(vt_out / v, abs=_otol(res, "vt")), res
+    assert res["w_x"] == pytest.approx(w_out * R / v, abs=_otol(res, "w")), res
+
+
+def test_dmt_friction_load_is_the_elastic_force_in_this_build():
+    # the source's |Fne + 2 F_pulloff| reads an uninitialised coh for DMT: the load is |Fne|
+    from jaximpact._io.lammps import ContactLaw
+
+    B = _oblique()
+    v, angle, mu = 1.0, 70.0, 0.1
+    vn, vt = v * math.cos(math.radians(angle)), v * math.sin(math.radians(angle))
+    law = ContactLaw("dmt", K, 0.5, tangential="linear_history", k_t=1e7, mu=mu)
+    res = B.lammps_oblique(law, R, RHO, v, angle, 0.0)
+    pulloff = 2 * math.pi * 0.5 * R
+    impulse, m = B.dmt_impulse(R, RHO, K, 0.5, vn, lambda n: abs(K * R**0.5 * n**1.5 - pulloff))
+    vt_out, _ = B.sliding_closed(vn, vt, 0.0, mu, R, impulse / m - 2 * vn)
+    assert res["vt_x"] == pytest.approx(vt_out / v, abs=_otol(res, "vt")), res
+
+
+def test_sticking_linear_history_oscillates():
+    from jaximpact._io.lammps import ContactLaw
+
+    B = _oblique()
+    v, angle, k_t = 1.0, 30.0, 1e5
+    vn, vt = v * math.cos(math.radians(angle)), v * math.sin(math.radians(angle))
+    law = ContactLaw("hertz", K, tangential="linear_history", k_t=k_t, mu=1e6)
+    res = B.lammps_oblique(law, R, RHO, v, angle, 0.0)
+    vt_out, w_out = B.sticking_closed(vn, vt, 0.0, k_t, R, RHO)
+    assert 0.9 < res["vt_order"] < 1.5  # first order
+    assert res["vt_x"] == pytest.approx(vt_out / v, abs=res["vt_conv"]), res
+    assert res["w_x"] == pytest.approx(w_out * R / v, abs=res["w_conv"]), res
+
+
+OBLIQUE = [
+    ("hertz", "none", "lammps_linear_history"),
+    ("dmt", "velocity", "lammps_mindlin"),
+    ("jkr", "tsuji", "lammps_linear_history"),
+]
+
+
+@pytest.mark.parametrize("normal, damping, tangential", OBLIQUE)
+def test_oblique_against_jaximpact(normal, damping, tangential):
+    from jaximpact._model import scene as scene_module
+
+    if tangential not in scene_module.TANGENTIAL_MODELS:
+        pytest.skip(f"jaximpact's Model does not take tangential = {tangential!r} yet")
+    out = _oblique().compare(normal, damping, tangential, 3, (200, 400, 800))
+    assert out["skipped"] is None, out["skipped"]
+    assert out["status_disagreements"] == 0, out
+    for k in ("vn", "vt", "w"):
+        assert out[f"max_diff_{k}"] <= max(10 * out[f"max_conv_{k}"], 1e-5), (k, out)

@@ -150,3 +150,65 @@ def test_bad_arguments():
         lammps.youngs_modulus(1e10, 0.3, "cylinder")
     with pytest.raises(ValueError, match="tsuji"):
         lammps.ContactLaw("hertz", 1e10, damping="tsuji", eta_n=2.0)
+
+
+def _lammps_tangential(model, **contact):
+    from jaximpact._model import scene as scene_module
+
+    if model not in scene_module.TANGENTIAL_MODELS:
+        pytest.skip(f"jaximpact's Model does not take tangential = {model!r} yet")
+    return _scene(tangential=model).replace(contact=contact)
+
+
+def test_lammps_linear_history_is_rendered_for_oblique_impacts():
+    scene = _lammps_tangential("lammps_linear_history", k_t=2e5, friction=0.25)
+    line = lammps.wall_fix(scene, angle_deg=40.0, omega0=1e4)
+    assert line.splitlines()[0].startswith("# tangential linear_history: k_t = 200000 N/m")
+    assert line.endswith("tangential linear_history 200000.0 0 0.25 zplane 0.0 NULL")
+    pair = lammps.pair_commands(scene, angle_deg=-40.0)
+    assert pair[-1].endswith("damping velocity tangential linear_history 200000.0 0 0.25")
+    law = lammps.contact_law(scene, angle_deg=10.0)
+    assert (law.tangential, law.k_t, law.mu) == ("linear_history", 2e5, 0.25)
+
+
+def test_lammps_mindlin_writes_eight_G_star_not_null():
+    # fix_wall_gran.cpp's NULL would be E/4 (2 - nu)(1 + nu), not 8 G* = 2 E/((2 - nu)(1 + nu))
+    scene = _lammps_tangential("lammps_mindlin", G_star=3e10, friction=0.3)
+    for cmd in (lammps.wall_fix(scene, angle_deg=30.0).splitlines()[1],
+                lammps.pair_commands(scene, omega0=5.0)[-1]):  # fmt: skip
+        assert _numbers(cmd, "mindlin") == [2.4e11, 0.0, 0.3]
+        assert "NULL" not in cmd.split("mindlin")[1].split("zplane")[0]
+
+
+def test_lammps_tangential_refusals():
+    scene = _lammps_tangential("lammps_linear_history", k_t=2e5)
+    rolling = scene.replace(model={"rolling_moments": "analytical"})
+    with pytest.raises(ValueError, match=r"model\.rolling_moments"):
+        lammps.wall_fix(rolling, angle_deg=30.0)
+    assert "linear_history" in lammps.wall_fix(rolling)  # normal, no spin: no rolling either
+    frozen = scene.replace(model={"rotation": False})
+    with pytest.raises(ValueError, match=r"model\.rotation"):
+        lammps.wall_fix(frozen, omega0=10.0)
+    with pytest.raises(ValueError, match="lammps_linear_history"):  # rigid: says what to use
+        lammps.wall_fix(_scene(), angle_deg=30.0)
+    with pytest.raises(ValueError, match="k_t"):
+        lammps.ContactLaw("hertz", 1e10, tangential="mindlin", k_t=0.0)
+
+
+def test_oblique_script_sets_the_tangential_velocity_and_spin():
+    law = lammps.ContactLaw("hertz", 1e10, tangential="linear_history", k_t=1e5, mu=0.2)
+    text = lammps.oblique_script(law, 2.0, 30.0, -1e4, radius=1e-5, density=2500.0, dt=1e-10,
+                                 max_steps=99)  # fmt: skip
+    assert "velocity ball set 0.9999999999999999 0.0 -1.7320508075688774" in text
+    assert "set atom 1 omega 0.0 -10000.0 0.0" in text
+    assert "tangential linear_history 100000.0 0 0.2 zplane 0.0 NULL" in text
+    # the halt looks one step ahead: x + dt (v + dt f / (2 m))
+    assert "variable left equal ((z[1]+1e-10*(vz[1]+0.5*1e-10*fz[1]/mass[1]))>1e-05)" in text
+    assert "fix state ball store/state 1 omegay tqy" in text
+    assert text.rstrip().endswith('ty=${tyf} mass=${massf}"')
+    pair = lammps.oblique_script(
+        lammps.ContactLaw("jkr", 1e10, w=0.1, tangential="mindlin", k_t=1e11, mu=0.2), 1.0, 45.0,
+        0.0, radius=1e-5, density=2500.0, dt=1e-10, max_steps=9, partner_radius=0.1,
+    )  # fmt: skip
+    assert "neighbor 5e-06 nsq" in pair and "tangential mindlin 100000000000.0 0 0.2" in pair
+    assert "set atom 1 omega" not in pair
