@@ -14,7 +14,9 @@ data"). With one positional argument it is the data: an embedded data set brings
 scene (`jaximpact fit kharaz2001 --params friction`), a file uses the embedded table1 scene.
 Embedded data: kharaz2001 (Kharaz, Gorham & Salman 2001: 5 mm alumina spheres on glass at
 3.9 m/s, 0-60 degrees; cor_t, omega_out, rebound_angle_deg); kharaz2001_mindlin: the same
-data with the scene of that name (tangential compliance: `--params friction G_star`).
+data with the scene of that name (tangential compliance: `--params friction G_star`);
+kharaz2001_lammps: the same data with LAMMPS's contact model (Hertz, Tsuji's damping, LAMMPS's
+mindlin history spring: `--params friction G_star`, then `jaximpact export lammps`).
 
 Without sigma columns each observable is weighted by a default scale (cor_n, cor_t: 0.01;
 vt_out: 1 % of the speed; omega_out: 1 % of speed/radius; rebound_angle_deg: 1 degree) and

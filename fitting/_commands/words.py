@@ -87,7 +87,11 @@ def _kharaz2001():
 
 
 #: Observation data sets shipped with fitting, by name (each may have a scene of that name).
-EMBEDDED_DATA = {"kharaz2001": _kharaz2001, "kharaz2001_mindlin": _kharaz2001}
+EMBEDDED_DATA = {
+    "kharaz2001": _kharaz2001,
+    "kharaz2001_mindlin": _kharaz2001,
+    "kharaz2001_lammps": _kharaz2001,
+}
 
 
 def _parse_priors(items, names) -> dict:
