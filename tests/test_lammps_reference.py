@@ -171,16 +171,7 @@ def test_sticking_linear_history_oscillates():
 
 OBLIQUE = [
     ("hertz", "none", "lammps_linear_history"),
-    pytest.param(
-        "dmt",
-        "velocity",
-        "lammps_mindlin",
-        marks=pytest.mark.xfail(
-            reason="LAMMPS (this build) loads DMT friction with |Fne| (its "
-            "coh is uninitialised), jaximpact with |Fne + 8 pi coh R|: "
-            "vt differs by up to 1.0 of the speed"
-        ),
-    ),
+    ("dmt", "velocity", "lammps_mindlin"),  # friction load |Fne|, as this build computes
     pytest.param(
         "jkr",
         "tsuji",

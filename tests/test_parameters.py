@@ -76,7 +76,7 @@ def test_transform_round_trips_and_priors_lie_inside_the_range():
             from fitting._least_squares.objective import FitError
 
             with pytest.raises(FitError, match="eta_n has no default prior .* --prior eta_n="):
-                default_prior(name)
+                default_prior(name)  # without the scene's damping model
         lo, hi = p.default_prior or (1e-6, 1.0)
         assert 0 < lo < hi
         assert p.range.contains(lo) and p.range.contains(hi), name

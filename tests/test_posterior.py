@@ -364,8 +364,15 @@ def test_scene_priors_are_read_and_overridden(tmp_path):
 
 
 def test_every_fittable_name_has_a_default_prior():
+    from fitting._bayesian.priors import ETA_N_PRIORS, default_prior
+
     for name in fitting.FITTABLE:
-        prior = fitting._bayesian.priors.default_prior(name)
+        if name == "eta_n":  # its unit, and so its prior, is the scene's damping model's
+            for damping in ETA_N_PRIORS:
+                prior = default_prior(name, damping)
+                assert 0 < prior.a < prior.b
+            continue
+        prior = default_prior(name)
         assert 0 < prior.a < prior.b
 
 

@@ -40,7 +40,7 @@ def posterior_setup(
     of the physical parameters)."""
     objective = fit_result.objective
     names = tuple(fit_result.params)
-    prior_map = priors_for(names, priors, objective.scene.priors)
+    prior_map = priors_for(names, priors, objective.scene.priors, objective.scene.model.damping)
     groups, noise_names = _noise_groups(objective)
     integrated = _integrates(noise, likelihood, noise_names)
     space = SamplingSpace(names, () if integrated else noise_names, prior_map)

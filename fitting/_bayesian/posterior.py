@@ -219,7 +219,7 @@ def sample_posterior(
     **Raises:** `FitError` for bad options, names or priors (and what `fit` raises).
     """
     names = _checked(params, sampler, likelihood, nu, chains, draws, warmup, moves, noise)
-    prior_map = priors_for(names, priors, scene.priors)
+    prior_map = priors_for(names, priors, scene.priors, scene.model.damping)
     fit_result, t_fit = _fit_first(
         scene, observations, names, fit_result, initial, starts, progress, method, dict(
             priors=priors, likelihood=likelihood, nu=nu, draws=draws, method=method, rtol=rtol,
@@ -333,7 +333,7 @@ def prepare_posterior(
     :func:`sample_posterior` will refuse, with its message, when called)."""
     try:
         names = check_names(params, scene)
-        prior_map = priors_for(names, priors, scene.priors)
+        prior_map = priors_for(names, priors, scene.priors, scene.model.damping)
         _check_options("smc", likelihood, nu, 1, draws, WARMUP)
         _integrates(noise, likelihood, ("any factor",))
         if moves not in MOVES:

@@ -63,8 +63,22 @@ class Prior:
         return -0.5 * z**2 - math.log(self.b * math.sqrt(2 * math.pi)) + log_jac
 
 
-def default_prior(name: str) -> Prior:
+#: The default log-uniform prior of ``eta_n`` by ``model.damping`` (its unit is the model's):
+#: wide, from microspheres to millimetre spheres and damping ratios of 1e-3 to about 1.
+ETA_N_PRIORS = {
+    "velocity": (1e-9, 1e3),  # kg/s
+    "mass_velocity": (1e1, 1e11),  # 1/s
+    "viscoelastic": (1e4, 1e17),  # 1/(m s)
+    "tsuji": (0.05, 1.0),  # Tsuji's restitution coefficient
+}
+
+
+def default_prior(name: str, damping: str | None = None) -> Prior:
+    """The default log-uniform prior of ``name`` (``damping``: the scene's ``model.damping``,
+    which sets ``eta_n``'s)."""
     if PRIOR_RANGES[name] is None:  # a unit that depends on the scene (eta_n)
+        if damping in ETA_N_PRIORS:
+            return Prior("loguniform", *ETA_N_PRIORS[damping])
         raise FitError(
             f"{name} has no default prior (its unit depends on the scene: "
             f"{PARAMETERS[name].unit}); give one, e.g. --prior {name}=loguniform:LO:HI"
@@ -112,10 +126,11 @@ def priors_for(
     names: Sequence[str],
     given: Mapping[str, object] | None,
     scene_priors: Sequence[tuple[str, str]] = (),
+    damping: str | None = None,
 ) -> dict[str, Prior]:
     """The prior of every fitted name: ``given`` (a `Prior` or its text), else the scene's
     ``[priors]`` entry (``scene.priors``; entries of names not fitted are ignored, so one scene
-    serves several fits), else the default.
+    serves several fits), else the default (``damping``: the scene's ``model.damping``).
 
     Raises:
         FitError: a prior given for a name that is not fitted, or a malformed one.
@@ -131,7 +146,7 @@ def priors_for(
         if p is None and name in from_scene:
             p = parse_prior(name, from_scene[name], f"scene priors.{name}")
         out[name] = (
-            default_prior(name)
+            default_prior(name, damping)
             if p is None
             else p
             if isinstance(p, Prior)

@@ -89,7 +89,7 @@ def _compared_models(args, names, scene_path) -> dict:
         priors = _parse_priors(
             [p for p in args.prior if p.partition("=")[0].strip() in model_names], model_names
         )
-        priors_for(model_names, priors, scene.priors)
+        priors_for(model_names, priors, scene.priors, scene.model.damping)
         out[label] = (scene, model_names, priors)
     return out
 

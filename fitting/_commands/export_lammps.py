@@ -29,8 +29,9 @@ the atoms exist, in an input with `units si` (every number is SI), `atom_style s
 
 Laws: the Brach-Dunn law without adhesion (hertz, or hertz/material with --material), DMT
 and JKR (coh = w/2), with LAMMPS's damping models (model.damping = velocity, mass_velocity,
-viscoelastic, tsuji; contact.eta_n) or none (C_H = 0). Only the normal contact is exported:
-no tangential force, friction or rolling resistance. JKR needs --geometry pair (this LAMMPS
+viscoelastic, tsuji; contact.eta_n) or none (C_H = 0). The tangential force only where the
+scene has LAMMPS's own history spring (model.tangential = lammps_linear_history or
+lammps_mindlin, with friction); no rolling resistance. JKR needs --geometry pair (this LAMMPS
 version's JKR wall is broken).
 
 Exit status: 0 written; 2 bad input (the file, a field, or a law LAMMPS lacks, named in one
@@ -204,8 +205,10 @@ def _fitted_scene(args, document) -> tuple:
         source = f"embedded {name}" if record.get("embedded") else name
         source += f" (as recorded in {path})"
     values = {n: float(e["value"]) for n, e in document["params"].items()}
+    spring = scene.model.tangential  # LAMMPS's own springs carry friction and their stiffness
+    carried = {"lammps_linear_history": ("friction",), "lammps_mindlin": ("friction", "G_star")}
     for name in values:
-        if name in _NOT_EXPORTED:
+        if name in _NOT_EXPORTED and name not in carried.get(spring, ()):
             raise ExportError(
                 f"{path}: params.{name}: {_NOT_EXPORTED[name]}; the export writes the normal "
                 f"law only: {_INSTEAD}"
@@ -368,10 +371,19 @@ def _mapping_comments(scene, law, geometry, material, poisson, fitted) -> list[s
             f"#   damping {law.damping} coefficient = eta_n = {_g(law.eta_n)} "
             f"{_DAMPING_UNITS[law.damping]} ({src('eta_n')})"
         )
-    m = scene.model
-    lines.append(
-        f"# not exported: the tangential model ({m.tangential}, friction "
-        f"{_g(float(scene.contact.friction))}) and rolling moments ({m.rolling_moments}): "
-        "LAMMPS's are not mapped yet"
-    )
+    m, c = scene.model, scene.contact
+    if m.tangential.startswith("lammps_"):  # (the tangential words: the renderer's line)
+        fitted = [n for n in ("friction", "G_star", "k_t") if src(n) == "fitted"]
+        lines.append(f"#   tangential spring's fitted parameters: {', '.join(fitted) or 'none'}")
+    else:
+        lines.append(
+            f"# not exported: the tangential model ({m.tangential}, friction "
+            f"{_g(float(c.friction))}): LAMMPS has no rigid Coulomb law or jaximpact's own "
+            "spring; use model.tangential = 'lammps_linear_history' or 'lammps_mindlin'"
+        )
+    if m.rolling_moments != "none":
+        lines.append(
+            f"# not exported: the rolling moments ({m.rolling_moments}): LAMMPS's rolling "
+            "models are not mapped yet"
+        )
     return lines

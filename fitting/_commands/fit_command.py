@@ -138,7 +138,7 @@ def _fit_inputs(args) -> tuple:
     if args.posterior:  # a bad prior in the scene's [priors] must not cost the fit either
         from .._bayesian.priors import priors_for
 
-        priors_for(names, priors, scene.priors)
+        priors_for(names, priors, scene.priors, scene.model.damping)
     _check_fit_outputs(args, posterior_outputs)
     return scene_path, data_path, names, priors, scene, alternatives
 

@@ -404,10 +404,12 @@ def _friction_load(terms: Terms, f):
 
 def lammps_critical_load(terms: Terms, p: ScaledParameters, f):
     """LAMMPS's critical normal force ``Fncrit`` (fix wall/gran, pair granular; 29 Sep 2021):
-    ``|F_ne + 2 F_pulloff|`` for the DMT and JKR laws (the elastic and adhesive force, without
-    the damping; ``F_pulloff`` ``2 pi w r`` and ``1.5 pi w r``), else ``|F_ne + F_damp|``."""
+    ``|F_ne + 2 F_pulloff|`` for JKR (the elastic and adhesive force without the damping,
+    ``F_pulloff = 1.5 pi w r``), ``|F_ne|`` for DMT (the source reads ``|F_ne + 2 F_pulloff|``
+    there too, but its cohesion is set only in JKR's branch: the build computes ``|F_ne|``,
+    measured by quadrature of sliding impacts, docs/dem.md), else ``|F_ne + F_damp|``."""
     if terms.normal == "dmt":
-        return jnp.abs(-f["F_H"] - f.get("F_A", 0.0) + 4.0 * math.pi * p.w_adhesion * p.radius)
+        return jnp.abs(-f["F_H"] - f.get("F_A", 0.0))
     if terms.normal == "jkr":
         return jnp.abs(-f["F_H"] - f.get("F_A", 0.0) + 3.0 * math.pi * p.w_adhesion * p.radius)
     return jnp.abs(f["F_n"])

@@ -92,11 +92,13 @@ def contact_forces(p: Params, n: float, ndot: float, w: float) -> dict:
 
 
 def _lammps_critical_load(p: Params, out: dict) -> float:
-    """LAMMPS's critical normal force: ``|F_ne + 2 F_pulloff|`` for DMT (``F_pulloff = 2 pi w
-    r``) and JKR (``1.5 pi w r``), without the damping; else ``|F_ne + F_damp|``."""
-    if p.normal in ("dmt", "jkr"):
-        pull = (2.0 if p.normal == "dmt" else 1.5) * math.pi * p.w * p.reduced_radius
-        return abs(-out["F_H"] - out["F_A"] + 2.0 * pull)
+    """LAMMPS's critical normal force (29 Sep 2021, as built): ``|F_ne + 2 F_pulloff|`` for
+    JKR (``F_pulloff = 1.5 pi w r``), ``|F_ne|`` for DMT (its cohesion is not set there),
+    without the damping; else ``|F_ne + F_damp|``."""
+    if p.normal == "jkr":
+        return abs(-out["F_H"] - out["F_A"] + 3.0 * math.pi * p.w * p.reduced_radius)
+    if p.normal == "dmt":
+        return abs(-out["F_H"] - out["F_A"])
     return abs(out["F_n"])
 
 
