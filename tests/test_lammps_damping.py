@@ -25,9 +25,9 @@ TIGHT = {"rtol": 1e-10, "atol": 1e-12}
 # (normal law, w, damping, eta_n): each damping once, each law at least once
 CASES = [
     ("brach_dunn", 0.0, "velocity", 3e-3),
-    ("brach_dunn", 0.0, "tsuji", 0.5),
+    pytest.param("brach_dunn", 0.0, "tsuji", 0.5, marks=pytest.mark.slow),
     ("dmt", 0.05, "viscoelastic", 1e11),
-    ("jkr", 0.05, "mass_velocity", 1e6),
+    pytest.param("jkr", 0.05, "mass_velocity", 1e6, marks=pytest.mark.slow),
 ]
 
 

@@ -38,9 +38,9 @@ def scene(tangential, normal="brach_dunn", w=0.0, damping="hertzian", eta=0.0, f
     "tangential,normal,w,damping,eta",
     [
         ("lammps_linear_history", "brach_dunn", 0.0, "hertzian", 0.0),
-        ("lammps_linear_history", "dmt", 0.05, "tsuji", 0.7),
+        pytest.param("lammps_linear_history", "dmt", 0.05, "tsuji", 0.7, marks=pytest.mark.slow),
         ("lammps_mindlin", "brach_dunn", 0.0, "velocity", 1e-3),
-        ("lammps_mindlin", "jkr", 0.05, "hertzian", 0.0),
+        pytest.param("lammps_mindlin", "jkr", 0.05, "hertzian", 0.0, marks=pytest.mark.slow),
     ],
 )
 def test_engine_against_the_exact_reference(tangential, normal, w, damping, eta):
