@@ -161,7 +161,7 @@ def _solver_lines(scene, params, speed, angle) -> list[str]:
     lines = []
     dtype = jnp.result_type(float)
     chosen = integration_settings(scene, params, np.array(speed), np.array(angle), dtype)
-    stiff = float(stiffness_estimate(params, speed, angle))
+    stiff = float(stiffness_estimate(params, speed, angle, scene.model.damping))
     lines.append("solver")
     if s.method == "auto":
         width = default_slip_width(dtype, s.slip_width, s.rtol)
@@ -188,7 +188,8 @@ def _terms_lines(terms, m) -> list[str]:
     """The terms the default impact compiles, and those it leaves out and why."""
     lines = []
     used, left = [], []
-    used.append("normal: Hertz force, Hertz damping")
+    damping = "Hertz damping" if not terms.lammps_damping else f"LAMMPS {m.damping} damping"
+    used.append(f"normal: Hertz force, {damping}")
     strength = "f0 = 0" if m.normal == "brach_dunn" else "w = 0"
     if terms.ring:
         used.append("adhesion ring force and adhesion damping")
@@ -198,7 +199,8 @@ def _terms_lines(terms, m) -> list[str]:
             "JKR curve (peak overlap as a state; the snap-off and yield losses in the ledger)"
         )
     elif terms.jkr:
-        used.append("JKR adhesion (contact until the snap-off overlap; its loss in the ledger)")
+        end = "pull-off" if terms.jkr_release == "pull_off" else "snap-off overlap"
+        used.append(f"JKR adhesion (contact until the {end}; its loss in the ledger)")
     elif terms.adhesion:
         used.append("DMT adhesion 2 pi w r (constant in contact, undamped)")
     else:
@@ -207,7 +209,13 @@ def _terms_lines(terms, m) -> list[str]:
         left.append(
             f'adhesion ring, its damping and peeling moment M_A (model.normal = "{m.normal}")'
         )
-    if terms.mindlin:
+    if terms.lammps_spring:
+        stiffness = "k_t" if terms.spring == "lammps_linear_history" else "8 G* a"
+        used.append(
+            f"LAMMPS's history spring {stiffness}, capped by friction (LAMMPS's critical normal "
+            "force; no normal force of the spring)"
+        )
+    elif terms.mindlin:
         used.append(
             f"Mindlin tangential spring 8 G* a, capped by friction ({m.friction_load} normal load)"
         )
