@@ -504,8 +504,11 @@ def _mindlin_loads(terms: Terms, p: ScaledParameters, y, f, spin, w, M):
     f["slip"] = slip(terms, p, y, spin)
     f["F_t"] = F_t
     f["k_t"] = k_t
+    # A constant stiffness's cap f N / k_t vanishes like n^1.5 at the contact's ends: its
+    # switch keeps a width of at least 1e-3 f (Hertz units: the peak normal force is ~1)
+    floor = 1e-3 * p.friction if terms.spring == "lammps_linear_history" else None
     f["slip_rate"] = laws.mindlin_slip_rate(
-        xi, f["slip"], limit, k_t, cap_rate, terms.cap_width, terms.slip_width
+        xi, f["slip"], limit, k_t, cap_rate, terms.cap_width, terms.slip_width, floor
     )
     return f
 

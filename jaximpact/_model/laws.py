@@ -224,7 +224,7 @@ def mindlin_stiffness_slope(n, radius, G_star, n_min=0.0):
     return jnp.where(n > -n_min, slope, 0.0)
 
 
-def mindlin_slip_rate(xi, slip, load_limit, k_t, cap_rate, cap_width, slip_width):
+def mindlin_slip_rate(xi, slip, load_limit, k_t, cap_rate, cap_width, slip_width, floor=None):
     """Rate at which the contact slips at the Coulomb cap: ``xi' = slip - rate`` (Hertz units).
 
     ``xi`` is the elastic tangential displacement, the spring force on the sphere ``-k_t xi``
@@ -238,9 +238,13 @@ def mindlin_slip_rate(xi, slip, load_limit, k_t, cap_rate, cap_width, slip_width
     ``k_t xi rate = k_t |xi| phi max(...)`` >= 0 and ``|xi| <= c`` once reached.
     """
     force = jnp.abs(k_t * xi)
-    ok = load_limit > 0
-    ratio = jnp.where(ok, force / jnp.where(ok, load_limit, 1.0), 2.0)
-    phi = 1.0 - smooth_step_flat(jnp.maximum(1.0 - ratio, 0.0) / cap_width)
+    if floor is None:
+        ok = load_limit > 0
+        ratio = jnp.where(ok, force / jnp.where(ok, load_limit, 1.0), 2.0)
+        phi = 1.0 - smooth_step_flat(jnp.maximum(1.0 - ratio, 0.0) / cap_width)
+    else:  # the switch's width at least cap_width * floor in force: bounded stiffness as N -> 0
+        band = cap_width * jnp.maximum(load_limit, floor)
+        phi = 1.0 - smooth_step_flat(jnp.maximum(load_limit - force, 0.0) / band)
     direction = jnp.sign(xi)
     drive = slip * direction - cap_rate
     return direction * phi * 0.5 * (drive + jnp.sqrt(drive * drive + slip_width * slip_width))
