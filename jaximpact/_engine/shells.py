@@ -100,7 +100,7 @@ def _jkr_exit(terms: dyn.Terms, p: ScaledParameters, ndot, xi=None, peak=None) -
         D = eta * width
         energy = energy - D * speed
         ok = energy > 0
-        out_speed = dyn._damped_exit_speed(D, jnp.where(ok, energy, 1.0))
+        out_speed = dyn.damped_exit_speed(D, jnp.where(ok, energy, 1.0))
         damping = 0.5 * D * (speed + out_speed)
     else:
         ok = energy > 0
@@ -174,7 +174,7 @@ def _shell_exit(
         D = dyn.shell_damping_integral(terms, p)
         energy = energy - D * speed
         shell["ok"] = energy > 0
-        out_speed = dyn._damped_exit_speed(D, jnp.where(shell["ok"], energy, 1.0))
+        out_speed = dyn.damped_exit_speed(D, jnp.where(shell["ok"], energy, 1.0))
         shell["loss_hertz_damping"] = shell["loss_hertz_damping"] + 0.5 * D * (speed + out_speed)
     else:
         shell["ok"] = energy > 0

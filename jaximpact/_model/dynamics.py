@@ -287,11 +287,11 @@ def entry_shell_damping(terms: Terms, p: ScaledParameters, work):
         loss = p.C_H * laws.hertz_potential(terms.contact_floor, p.radius, p.K)
         return jnp.sqrt(1.0 + 2.0 * (work - loss)), loss
     D = shell_damping_integral(terms, p)
-    ndot = _damped_exit_speed(D, 1.0 + 2.0 * work - D)
+    ndot = damped_exit_speed(D, 1.0 + 2.0 * work - D)
     return ndot, 0.5 * D * (1.0 + ndot)
 
 
-def _damped_exit_speed(D, c):
+def damped_exit_speed(D, c):
     """The root ``v >= 0`` of ``v^2 + D v = c`` (``c >= 0``): the speed after a stretch whose
     damping work is ``D`` times the mean of the speeds before and after."""
     c = jnp.maximum(c, 0.0)
